@@ -1,0 +1,1 @@
+"""Pictures of towns and camera frames for people to look at."""
