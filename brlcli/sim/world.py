@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import pybullet as pb
@@ -61,7 +61,7 @@ class Frame:
     rgb: np.ndarray | None = None
     labels: np.ndarray | None = None
     depth: np.ndarray | None = None
-    control: Control = Control()
+    control: Control = field(default_factory=Control)
 
 
 def _quat_yaw(yaw: float) -> tuple[float, float, float, float]:
