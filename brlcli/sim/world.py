@@ -6,9 +6,9 @@ import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-import pybullet as pb
 
 from brlcli.errors import BrlInputError
+from brlcli.sim._bullet import pybullet as pb
 from brlcli.sim.camera import CameraConfig, Renderer
 from brlcli.sim.classes import CarlaClass
 from brlcli.sim.roadnet import RoadNetwork

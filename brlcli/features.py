@@ -1,0 +1,48 @@
+"""The paper's 30-number state: 5 category shares in 6 image regions of a semantic label image."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from brlcli.sim.classes import CarlaClass
+
+N_CATEGORIES = 5
+N_REGIONS = 6
+STATE_DIM = N_CATEGORIES * N_REGIONS
+ROAD_LINE_WEIGHT = 20.0
+TOP_ROW_SHARE = 0.4
+COLUMN_SHARES = (0.3, 0.4, 0.3)
+
+#: CARLA class id -> category: 0 road, 1 road line, 2 off-road, 3 dynamic object, 4 static object.
+CLASS_TO_CATEGORY = np.zeros(256, np.int64)
+CLASS_TO_CATEGORY[[CarlaClass.ROADS]] = 0
+CLASS_TO_CATEGORY[[CarlaClass.ROAD_LINES]] = 1
+CLASS_TO_CATEGORY[[CarlaClass.SIDEWALKS, CarlaClass.OTHER, CarlaClass.NONE]] = 2
+CLASS_TO_CATEGORY[[CarlaClass.PEDESTRIANS, CarlaClass.VEHICLES]] = 3
+CLASS_TO_CATEGORY[[CarlaClass.BUILDINGS, CarlaClass.FENCES, CarlaClass.POLES, CarlaClass.VEGETATION,
+                   CarlaClass.WALLS, CarlaClass.TRAFFIC_SIGNS]] = 4
+CATEGORY_WEIGHTS = np.array([1.0, ROAD_LINE_WEIGHT, 1.0, 1.0, 1.0])
+
+
+def region_index(height: int, width: int) -> np.ndarray:
+    """Region id (0..5, row-major: top-left, top-middle, top-right, bottom-left, ...) of every pixel."""
+    top = int(round(TOP_ROW_SHARE * height))
+    c1 = int(round(COLUMN_SHARES[0] * width))
+    c2 = int(round((COLUMN_SHARES[0] + COLUMN_SHARES[1]) * width))
+    rows = (np.arange(height) >= top).astype(np.int64)
+    cols = np.searchsorted([c1, c2], np.arange(width), side="right")
+    return rows[:, None] * 3 + cols[None, :]
+
+
+def state_vector(labels: np.ndarray) -> np.ndarray:
+    """Label image (H, W) of CARLA ids -> 30-vector (region-major, 5 categories each), L1-normalised."""
+    h, w = labels.shape
+    bins = region_index(h, w) * N_CATEGORIES + CLASS_TO_CATEGORY[labels]
+    counts = np.bincount(bins.ravel(), minlength=STATE_DIM).astype(np.float64)
+    counts *= np.tile(CATEGORY_WEIGHTS, N_REGIONS)
+    return counts / counts.sum()
+
+
+def road_share(state: np.ndarray) -> float:
+    """Sum of the Road entries of a normalised state over the six regions."""
+    return float(np.asarray(state)[0::N_CATEGORIES].sum())

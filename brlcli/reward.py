@@ -1,0 +1,45 @@
+"""The paper's reward (eqs. 12-14) with every term by name."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from brlcli.features import road_share
+
+
+@dataclass(frozen=True)
+class RewardParams:
+    """Reward constants (paper Table 'Parameter Settings'); target speed in km/h (not given in the paper)."""
+
+    r_collision: float = 50.0
+    r_offroad: float = 40.0
+    r_otherlane: float = 30.0
+    r_reverse: float = 15.0
+    r_slow: float = 10.0
+    target_speed_kmh: float = 20.0
+    road_view_weight: float = 20.0
+    road_view_min: float = 0.5
+
+
+def reward_terms(collided: bool, offroad: float, otherlane: float, speed_kmh: float, state: object,
+                 params: RewardParams = RewardParams()) -> dict[str, float]:
+    """Named reward terms (only the first matching of collision / off-road / opposite lane / speed applies)."""
+    terms = {"collision": 0.0, "offroad": 0.0, "otherlane": 0.0, "speed": 0.0, "road_view": 0.0}
+    if collided:
+        terms["collision"] = -params.r_collision
+    elif offroad > 0:
+        terms["offroad"] = -params.r_offroad * offroad
+    elif otherlane > 0:
+        terms["otherlane"] = -params.r_otherlane * otherlane
+    else:
+        vt = params.target_speed_kmh
+        rel = ((speed_kmh - vt) / vt) ** 2
+        if speed_kmh < 0:
+            terms["speed"] = -params.r_reverse * rel
+        elif speed_kmh < vt:
+            terms["speed"] = -params.r_slow * rel
+    road = road_share(state)  # type: ignore[arg-type]
+    if road < params.road_view_min:
+        terms["road_view"] = params.road_view_weight * (road - 1.0)
+    terms["total"] = sum(terms.values())
+    return terms

@@ -1,0 +1,116 @@
+"""Gymnasium environment over a brl world: the paper's 30-number state, four action primitives and reward."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from brlcli.errors import BrlInputError
+from brlcli.features import STATE_DIM, state_vector
+from brlcli.reward import RewardParams, reward_terms
+from brlcli.sim.camera import CameraConfig
+from brlcli.sim.vehicle import Control
+from brlcli.sim.world import FRAME_DT_S, World
+
+#: The paper's action primitives (reference code values): forward, right, left, backward.
+ACTIONS: tuple[Control, ...] = (
+    Control(steer=0.0, throttle=0.5),
+    Control(steer=0.4, throttle=0.35),
+    Control(steer=-0.4, throttle=0.35),
+    Control(steer=0.0, throttle=0.4, reverse=True),
+)
+ACTION_NAMES = ("forward", "right", "left", "backward")
+FRAMES_PER_DECISION = 7
+GOAL_TOLERANCE_M = 2.0
+STUCK_SPEED_KMH = 1.0
+STUCK_TIME_S = 5.0
+
+
+def route_timeout_s(length_m: float) -> float:
+    """CoRL2017 timeout: the route at 10 km/h plus 10 s."""
+    return length_m / 1000.0 / 10.0 * 3600.0 + 10.0
+
+
+class DrivingEnv(gym.Env):
+    """Lane keeping on a town's routes: observation = 30-vector state, 4 discrete actions, the paper's reward.
+
+    An episode starts at a route drawn from `routes` ("training" or "lane_keeping" of the town) and ends at the
+    goal (terminated), at the route's CoRL-style timeout or when stuck (truncated).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, town: str = "town01", weather: int | str = 1, routes: str = "training",
+                 kinds: tuple[str, ...] = ("straight", "right_curve", "left_curve"), vehicles: int = 0,
+                 pedestrians: int = 0, camera: CameraConfig | None = None, reward: RewardParams | None = None,
+                 render_mode: str | None = None) -> None:
+        super().__init__()
+        self.world = World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians, camera=camera)
+        pool = {"training": self.world.town.training_routes, "lane_keeping": self.world.town.lane_keeping_routes}
+        if routes not in pool:
+            raise BrlInputError(f"unknown route set '{routes}'; choose training or lane_keeping")
+        self.routes = [r for r in pool[routes] if r.kind in kinds]
+        if not self.routes:
+            raise BrlInputError(f"town {self.world.town.name} has no {routes} routes of kinds {', '.join(kinds)}")
+        self.reward_params = reward or RewardParams()
+        self.render_mode = render_mode
+        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(STATE_DIM,), dtype=np.float32)
+        self.action_space = gym.spaces.Discrete(len(ACTIONS))
+        self._rgb: np.ndarray | None = None
+
+    def _observe(self, frame: Any) -> np.ndarray:
+        self._rgb = frame.rgb
+        self._state = state_vector(frame.labels)
+        return self._state.astype(np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        """Draw a route (or take `options['route']`, a route name) and start at its first pose."""
+        super().reset(seed=seed)
+        name = (options or {}).get("route")
+        if name is not None:
+            matches = [r for r in self.routes if r.name == name]
+            if not matches:
+                raise BrlInputError(f"unknown route '{name}'")
+            spec = matches[0]
+        else:
+            spec = self.routes[int(self.np_random.integers(len(self.routes)))]
+        self.spec_route = spec
+        self.route = self.world.network.route(spec.start, spec.goal)
+        self.timeout_s = route_timeout_s(self.route.length_m)
+        frame = self.world.reset(spec.start, seed=int(self.np_random.integers(2**31)))
+        self._collision_total = 0.0
+        self._stuck_s = 0.0
+        return self._observe(frame), {"route": spec.name, "route_length_m": self.route.length_m}
+
+    def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """Hold the action's control for 7 frames, render the last one, and score it."""
+        if not self.action_space.contains(action):
+            raise BrlInputError(f"action {action!r} is not one of 0..{len(ACTIONS) - 1}")
+        control = ACTIONS[int(action)]
+        for k in range(FRAMES_PER_DECISION):
+            frame = self.world.step(control, render=k == FRAMES_PER_DECISION - 1)
+        m = frame.measurements
+        total = m.collision_vehicles + m.collision_pedestrians + m.collision_other
+        collided = total > self._collision_total
+        self._collision_total = total
+        obs = self._observe(frame)
+        terms = reward_terms(collided, m.intersection_offroad, m.intersection_otherlane, m.forward_speed_kmh,
+                             self._state, self.reward_params)
+        s, _ = self.route.project(m.x, m.y)
+        dist_goal = float(np.hypot(m.x - self.route.goal[0], m.y - self.route.goal[1]))
+        terminated = dist_goal <= GOAL_TOLERANCE_M or s >= self.route.length_m - GOAL_TOLERANCE_M
+        self._stuck_s = self._stuck_s + FRAMES_PER_DECISION * FRAME_DT_S if abs(m.forward_speed_kmh) < \
+            STUCK_SPEED_KMH else 0.0
+        truncated = not terminated and (m.game_time_s >= self.timeout_s or self._stuck_s >= STUCK_TIME_S)
+        info = {"reward_terms": terms, "measurements": m.as_dict(), "route_s_m": s, "collided": collided}
+        return obs, float(terms["total"]), bool(terminated), bool(truncated), info
+
+    def render(self) -> np.ndarray | None:
+        """The last rendered RGB frame."""
+        return self._rgb
+
+    def close(self) -> None:
+        """Release the world's physics client."""
+        self.world.close()
