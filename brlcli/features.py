@@ -26,9 +26,9 @@ CATEGORY_WEIGHTS = np.array([1.0, ROAD_LINE_WEIGHT, 1.0, 1.0, 1.0])
 
 def region_index(height: int, width: int) -> np.ndarray:
     """Region id (0..5, row-major: top-left, top-middle, top-right, bottom-left, ...) of every pixel."""
-    top = int(round(TOP_ROW_SHARE * height))
-    c1 = int(round(COLUMN_SHARES[0] * width))
-    c2 = int(round((COLUMN_SHARES[0] + COLUMN_SHARES[1]) * width))
+    top = round(TOP_ROW_SHARE * height)
+    c1 = round(COLUMN_SHARES[0] * width)
+    c2 = round((COLUMN_SHARES[0] + COLUMN_SHARES[1]) * width)
     rows = (np.arange(height) >= top).astype(np.int64)
     cols = np.searchsorted([c1, c2], np.arange(width), side="right")
     return rows[:, None] * 3 + cols[None, :]

@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from brlcli.errors import BrlInputError
+from brlcli.sim._bullet import connect_direct, quiet_stdout
 from brlcli.sim._bullet import pybullet as pb
 from brlcli.sim.camera import CameraConfig, Renderer
 from brlcli.sim.classes import CarlaClass
@@ -91,7 +92,7 @@ class World:
         static[:, 7] = np.radians(static[:, 7])
         self.renderer = Renderer(self.map, static, self.camera)
         self.traffic = Traffic(self.network, vehicles, pedestrians)
-        self._client = pb.connect(pb.DIRECT)
+        self._client = connect_direct()
         self._build_physics(static)
         self.ego = VehicleState()
         self._rng = np.random.default_rng(self.seed)
@@ -253,7 +254,8 @@ class World:
         """Disconnect the pybullet client."""
         if self._client is not None and self._client >= 0:
             try:
-                pb.disconnect(physicsClientId=self._client)
+                with quiet_stdout():
+                    pb.disconnect(physicsClientId=self._client)
             except pb.error:
                 pass
             self._client = -1
