@@ -20,7 +20,7 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from brlcli.sim import Control, World  # noqa: E402
+from brlcli.sim import Control, World
 
 
 def _rss_mb() -> float:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -40,7 +40,7 @@ class DrivingEnv(gym.Env):
     goal (terminated), at the route's CoRL-style timeout or when stuck (truncated).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(self, town: str = "town01", weather: int | str = 1, routes: str = "training",
                  kinds: tuple[str, ...] = ("straight", "right_curve", "left_curve"), vehicles: int = 0,

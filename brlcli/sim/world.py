@@ -8,7 +8,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from brlcli.errors import BrlInputError
-from brlcli.sim._bullet import connect_direct, quiet_stdout
+from brlcli.sim._bullet import connect_direct, quiet_console
 from brlcli.sim._bullet import pybullet as pb
 from brlcli.sim.camera import CameraConfig, Renderer
 from brlcli.sim.classes import CarlaClass
@@ -254,7 +254,7 @@ class World:
         """Disconnect the pybullet client."""
         if self._client is not None and self._client >= 0:
             try:
-                with quiet_stdout():
+                with quiet_console():
                     pb.disconnect(physicsClientId=self._client)
             except pb.error:
                 pass
