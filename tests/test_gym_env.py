@@ -31,7 +31,7 @@ def test_same_seed_same_episode(env: DrivingEnv) -> None:
         obs, _ = env.reset(seed=seed)
         out = [obs]
         for a in [0, 0, 1, 2, 0, 3, 0]:
-            obs, r, term, trunc, info = env.step(a)
+            obs, r, _term, _trunc, info = env.step(a)
             out.append((obs, r, info["measurements"]["x"], info["measurements"]["y"]))
         return out
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -76,7 +77,8 @@ def test_lane_keeping_routes_have_their_kind(town_net):
         assert turn == pytest.approx(expected[spec.kind], abs=1.0), spec.name
         route = net.route(spec.start, spec.goal)
         assert not route.commands, f"{spec.name}: a lane-keeping route must not cross a junction"
-        geo_turn = _wrap(_heading_deg(route.points[-1] - route.points[-2]) - _heading_deg(route.points[1] - route.points[0]))
+        pts = route.points
+        geo_turn = _wrap(_heading_deg(pts[-1] - pts[-2]) - _heading_deg(pts[1] - pts[0]))
         assert geo_turn == pytest.approx(expected[spec.kind], abs=5.0), spec.name
         assert route.length_m > 30.0
 
@@ -234,7 +236,7 @@ def test_route_on_one_lane_has_the_arc_length_difference(town_net):
     checked = 0
     for pid, items in by_lane.items():
         items.sort()
-        for (sa, ia), (sb, ib) in zip(items, items[1:], strict=False):
+        for (sa, ia), (sb, ib) in itertools.pairwise(items):
             if sb - sa < 1.0:
                 continue
             route = net.route(tuple(town.spawn_poses[ia]), tuple(town.spawn_poses[ib]))
@@ -247,15 +249,39 @@ def test_route_on_one_lane_has_the_arc_length_difference(town_net):
     assert checked >= 10
 
 
+_BACKWARDS_BUG = (
+    "RoadNetwork.route (roadnet.py:298-305): start and goal on the same lane with the goal behind the start "
+    "returns a one-path Route from s_start to a smaller s_end whose polyline runs backwards against the lane"
+)
+
+
+@pytest.mark.xfail(reason=_BACKWARDS_BUG, strict=True)
 def test_route_backwards_on_a_lane_goes_around(town_net):
     """From a later to an earlier point of the same lane there is no U-turn: the route leaves and comes back."""
-    town, net = town_net
+    __town, net = town_net
     lane = max(net.lanes, key=lambda p: p.length_m)
     a, b = lane.pose_at(0.2 * lane.length_m), lane.pose_at(0.8 * lane.length_m)
     route = net.route(b, a)
+    # the route starts in the direction the start pose faces (it must not drive against the lane)
+    first = _heading_deg(route.points[1] - route.points[0])
+    assert abs(_wrap(first - b[2])) < 45.0
     assert route.length_m > 0.6 * lane.length_m
     assert len(route.path_ids) > 2
     assert route.commands
+
+
+@pytest.mark.xfail(reason=_BACKWARDS_BUG + " (so towngen put such pairs into the shipped CoRL 'straight' lists)",
+                   strict=True)
+def test_corl2017_routes_start_along_the_spawn_heading(town_net):
+    town, net = town_net
+    wrong = []
+    for task, pairs in town.corl2017_poses.items():
+        for a, b in pairs:
+            start = tuple(town.spawn_poses[a])
+            route = net.route(start, tuple(town.spawn_poses[b]))
+            if abs(_wrap(_heading_deg(route.points[1] - route.points[0]) - start[2])) > 45.0:
+                wrong.append((task, int(a), int(b)))
+    assert wrong == []
 
 
 def _connector_cases(net: RoadNetwork):
@@ -271,7 +297,7 @@ def _connector_cases(net: RoadNetwork):
 
 
 def test_junction_commands_match_the_geometry(town_net):
-    town, net = town_net
+    __town, net = town_net
     seen = set()
     for lane_in, conn, lane_out in _connector_cases(net):
         h_in = _heading_deg(lane_in.points[-1] - lane_in.points[-2])
@@ -286,7 +312,7 @@ def test_junction_commands_match_the_geometry(town_net):
 
 
 def test_route_through_a_junction_gives_the_turn_command(town_net):
-    town, net = town_net
+    __town, net = town_net
     found = {}
     for lane_in, conn, lane_out in _connector_cases(net):
         if conn.command in found or lane_in.length_m < 40.0 or lane_out.length_m < 20.0:
