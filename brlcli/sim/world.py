@@ -112,6 +112,7 @@ class World:
         pb.setTimeStep(FRAME_DT_S / self.substeps, physicsClientId=c)
         pb.setPhysicsEngineParameter(deterministicOverlappingPairs=1, numSolverIterations=10, physicsClientId=c)
         self._body_kind: dict[int, int] = {}  # body id -> 0 vehicle, 1 pedestrian, 2 other
+        self.body_classes: dict[int, CarlaClass] = {}  # every pybullet body -> its CARLA class
         for cls in _SOLID:
             rows = static[static[:, 0] == cls]
             for chunk in range(0, len(rows), 256):
@@ -125,12 +126,14 @@ class World:
                 )
                 body = pb.createMultiBody(0, shape, physicsClientId=c)
                 self._body_kind[body] = 2
+                self.body_classes[body] = CarlaClass(cls)
         ego_shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[LENGTH_M / 2, WIDTH_M / 2, HEIGHT_M / 2],
                                             physicsClientId=c)
         self._ego_z = HEIGHT_M / 2 + 0.02
         self._ego_body = pb.createMultiBody(MASS_KG, ego_shape, basePosition=[0, 0, self._ego_z], physicsClientId=c)
         pb.changeDynamics(self._ego_body, -1, linearDamping=0.0, angularDamping=0.0, lateralFriction=0.3,
                           restitution=0.0, physicsClientId=c)
+        self.body_classes[self._ego_body] = CarlaClass.VEHICLES
         veh_shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[LENGTH_M / 2, WIDTH_M / 2, HEIGHT_M / 2],
                                             physicsClientId=c)
         lp, wp, hp = PEDESTRIAN_SIZE_M
@@ -140,11 +143,15 @@ class World:
             b = pb.createMultiBody(0, veh_shape, basePosition=[i * 10.0, 0, _PARK_Z_M], physicsClientId=c)
             self._veh_bodies.append(b)
             self._body_kind[b] = 0
+            self.body_classes[b] = CarlaClass.VEHICLES
         for i in range(self.traffic.n_pedestrians):
             b = pb.createMultiBody(0, ped_shape, basePosition=[i * 10.0, 50, _PARK_Z_M], physicsClientId=c)
             self._ped_bodies.append(b)
             self._body_kind[b] = 1
+            self.body_classes[b] = CarlaClass.PEDESTRIANS
         self._synced = np.zeros(len(self._veh_bodies) + len(self._ped_bodies), bool)
+        # every episode starts from this saved state, so that an episode does not depend on the ones before it
+        self._initial_state = pb.saveState(physicsClientId=c)
 
     def _sync_traffic(self) -> None:
         """Move traffic bodies near the ego to their poses; park the rest out of the way."""
@@ -179,8 +186,9 @@ class World:
         if not all(math.isfinite(v) for v in (x, y, yaw_deg)):
             raise BrlInputError(f"start pose {pose} is not finite")
         self.ego = VehicleState(x_m=x, y_m=y, yaw_rad=math.radians(yaw_deg))
+        pb.restoreState(self._initial_state, physicsClientId=self._client)
+        self._synced[:] = False
         self._place_ego()
-        pb.resetBaseVelocity(self._ego_body, [0, 0, 0], [0, 0, 0], physicsClientId=self._client)
         self.traffic.reset(np.random.default_rng(self._rng.integers(2**63)), keep_clear=(x, y))
         self._sync_traffic()
         self.frame_index = 0
