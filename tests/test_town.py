@@ -195,6 +195,20 @@ def test_malformed_town_names_the_field(tmp_path, mutate, field, words):
     assert isinstance(info.value, BrlInputError)
 
 
+def test_dead_end_road_is_a_format_error_naming_edges(tmp_path):
+    """A valid-looking file whose road graph has a dead end loads, but no road network can be built from it."""
+    raw = _raw()
+    x, y = raw["nodes"][0]
+    raw["nodes"].append([x, y - 10])
+    raw["edges"].append([0, len(raw["nodes"]) - 1])
+    town = load_town(_write(tmp_path, raw))
+    with pytest.raises(TownFormatError) as info:
+        RoadNetwork(town)
+    msg = str(info.value)
+    assert "'edges'" in msg and "dead end" in msg
+    assert "\n" not in msg
+
+
 def test_invalid_json_is_a_one_line_format_error(tmp_path):
     p = tmp_path / "broken.json"
     p.write_text('{"format": "brl-town",\n "format_version": 1,,}', encoding="utf-8")
@@ -249,16 +263,9 @@ def test_route_on_one_lane_has_the_arc_length_difference(town_net):
     assert checked >= 10
 
 
-_BACKWARDS_BUG = (
-    "RoadNetwork.route (roadnet.py:298-305): start and goal on the same lane with the goal behind the start "
-    "returns a one-path Route from s_start to a smaller s_end whose polyline runs backwards against the lane"
-)
-
-
-@pytest.mark.xfail(reason=_BACKWARDS_BUG, strict=True)
 def test_route_backwards_on_a_lane_goes_around(town_net):
     """From a later to an earlier point of the same lane there is no U-turn: the route leaves and comes back."""
-    __town, net = town_net
+    _town, net = town_net
     lane = max(net.lanes, key=lambda p: p.length_m)
     a, b = lane.pose_at(0.2 * lane.length_m), lane.pose_at(0.8 * lane.length_m)
     route = net.route(b, a)
@@ -270,8 +277,6 @@ def test_route_backwards_on_a_lane_goes_around(town_net):
     assert route.commands
 
 
-@pytest.mark.xfail(reason=_BACKWARDS_BUG + " (so towngen put such pairs into the shipped CoRL 'straight' lists)",
-                   strict=True)
 def test_corl2017_routes_start_along_the_spawn_heading(town_net):
     town, net = town_net
     wrong = []
@@ -297,7 +302,7 @@ def _connector_cases(net: RoadNetwork):
 
 
 def test_junction_commands_match_the_geometry(town_net):
-    __town, net = town_net
+    _town, net = town_net
     seen = set()
     for lane_in, conn, lane_out in _connector_cases(net):
         h_in = _heading_deg(lane_in.points[-1] - lane_in.points[-2])
@@ -312,7 +317,7 @@ def test_junction_commands_match_the_geometry(town_net):
 
 
 def test_route_through_a_junction_gives_the_turn_command(town_net):
-    __town, net = town_net
+    _town, net = town_net
     found = {}
     for lane_in, conn, lane_out in _connector_cases(net):
         if conn.command in found or lane_in.length_m < 40.0 or lane_out.length_m < 20.0:

@@ -298,11 +298,19 @@ class RoadNetwork:
         if pa == pb and sb >= sa:
             return Route(self, [pa], sa, sb)
         dist, pred = dijkstra(self._graph, directed=True, indices=pa, return_predecessors=True)
-        if not np.isfinite(dist[pb]):
+        last = pb
+        if pa == pb:  # goal behind the start on the same lane: leave the lane and come back round
+            entries = [u for u in range(len(self.paths)) if pa in self.successors[u] and np.isfinite(dist[u])]
+            if not entries:
+                raise BrlInputError(f"no route from {start} to {goal}")
+            last = min(entries, key=lambda u: dist[u])
+        elif not np.isfinite(dist[pb]):
             raise BrlInputError(f"no route from {start} to {goal}")
-        chain = [pb]
+        chain = [last]
         while chain[-1] != pa:
             chain.append(int(pred[chain[-1]]))
+        if pa == pb:
+            chain.insert(0, pb)
         return Route(self, chain[::-1], sa, sb)
 
 

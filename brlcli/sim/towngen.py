@@ -19,7 +19,7 @@ from brlcli.sim.townmap import RESOLUTION_M, TERRAIN, TownMap
 
 GRID_UNIT_M = 8.215
 GEOMETRY = TownGeometry(
-    lane_width_m=3.5, sidewalk_width_m=3.0, junction_half_size_m=9.0, corner_radius_m=12.0, line_width_m=0.15
+    lane_width_m=4.0, sidewalk_width_m=3.0, junction_half_size_m=9.0, corner_radius_m=20.0, line_width_m=0.15
 )
 
 TOWN01_EDGES = (
@@ -288,8 +288,8 @@ def generate(name: str) -> dict:
     tmap = TownMap(net)
     objects = place_objects(net, tmap, rng)
     poses = spawn_poses(net)
-    train = lane_keeping_routes(net, "train", 30.0, 25.0, 70.0, 6.0)
-    test = lane_keeping_routes(net, "test", 25.0, 30.0, 90.0, 15.0)
+    train = lane_keeping_routes(net, "train", 25.0, 20.0, 70.0, 6.0)
+    test = lane_keeping_routes(net, "test", 20.0, 25.0, 90.0, 15.0)
     doc = {
         "format": TOWN_FORMAT,
         "format_version": TOWN_FORMAT_VERSION,

@@ -3,12 +3,12 @@
 Longitudinal (forward speed v, m/s, negative when reversing; `g` = +1 forward gear, -1 reverse):
     a = g * ACCEL_MAX * throttle - DRAG_LINEAR * v - DRAG_QUAD * v|v| - ROLLING * sign(v) - BRAKE_MAX * brake * sign(v)
 Rolling resistance and brake never reverse the direction of motion within a sub-step.
-Calibration: throttle 0.5 settles at sqrt-solution of 0.5*ACCEL_MAX = ROLLING + DRAG_LINEAR v + DRAG_QUAD v^2,
-about 27 km/h; throttle 0.35 (the paper's turn primitive) about 20 km/h; throttle 0.4 in reverse about -22 km/h.
+Calibration (steady state, measured with `advance` at 0.05 s steps): throttle 0.5 settles at 23.1 km/h, throttle
+0.35 (the paper's turn primitive) at 16.2 km/h, throttle 0.4 in reverse at -18.6 km/h.
 
 Lateral: the steering angle follows the command with a first-order lag `STEER_TAU_S` up to `MAX_STEER_DEG`
-(steer 0.4 -> 18 degrees -> turning radius WHEELBASE_M / tan(18 deg) = 8.9 m, tighter than a town corner's
-right lane, 10.25 m); yaw rate = v tan(delta) / WHEELBASE_M.
+(steer 0.4 -> 18 degrees -> turning radius WHEELBASE_M / tan(18 deg) = 8.9 m, tighter than the inner lane of
+a town corner, 18 m); yaw rate = v tan(delta) / WHEELBASE_M.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ MASS_KG = 1500.0
 MAX_STEER_DEG = 45.0
 STEER_TAU_S = 0.15
 ACCEL_MAX = 4.0  # m/s^2 at full throttle
-DRAG_LINEAR = 0.20  # 1/s
+DRAG_LINEAR = 0.25  # 1/s
 DRAG_QUAD = 0.006  # 1/m
 ROLLING = 0.15  # m/s^2
 BRAKE_MAX = 8.0  # m/s^2 at full brake
