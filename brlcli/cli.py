@@ -60,6 +60,69 @@ def preview(
         typer.echo(str(p))
 
 
+@app.command()
+def train(
+    town: Annotated[str, typer.Option(help="Town to train in.")] = "town01",
+    weather: Annotated[str, typer.Option(help="Weather id or name (the paper trains in ClearNoon).")] = "1",
+    input: Annotated[str, typer.Option("--input", help="State source: gt (simulator labels) or estimated.")] = "gt",
+    steps: Annotated[int, typer.Option(help="Learning steps per model (paper: t_max = 4500).")] = 4500,
+    seed: Annotated[int, typer.Option(help="Seed of a single model.")] = 0,
+    seeds: Annotated[str | None, typer.Option(help="Train a model set, e.g. 0-8 (overrides --seed).")] = None,
+    workers: Annotated[int, typer.Option(help="Parallel processes for a model set.")] = 1,
+    out: Annotated[Path, typer.Option("--out", help="Output directory (one seed_N/ per model).")] = Path("runs/train"),
+    resume: Annotated[bool, typer.Option("--resume", help="Continue interrupted runs in --out.")] = False,
+    variant: Annotated[str, typer.Option(help="paper, or reference-code (the authors' code's choices).")] = "paper",
+    target_speed_kmh: Annotated[float, typer.Option(help="Reward's target speed v_t, km/h.")] = 20.0,
+    evaluate: Annotated[bool, typer.Option(help="Greedy evaluation on the lane-keeping routes at the end.")] = True,
+) -> None:
+    """Online Bayesian RL training of the driving agent (paper Sec. III-IV)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from brlcli.sim.weather import get_weather
+    from brlcli.train import TrainConfig, parse_seeds, train_many
+
+    if workers < 1:
+        raise_input("--workers must be at least 1")
+    seed_list = parse_seeds(seeds) if seeds is not None else [seed]
+    cfg = TrainConfig(town=town, weather=get_weather(weather).id, input=input, steps=steps, seed=seed_list[0],
+                      variant=variant, target_speed_kmh=target_speed_kmh, evaluate=evaluate)
+    from brlcli.sim.town import load_town
+
+    load_town(town)
+    console = Console(stderr=True)
+    columns = (TextColumn("seed {task.fields[seed]}"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("reward {task.fields[reward]:7.2f}  TD {task.fields[td]:8.2f}  comps {task.fields[comps]}"),
+               TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=False) as bar:
+        tasks = {s: bar.add_task("", total=steps, seed=s, reward=0.0, td=0.0, comps=1) for s in seed_list}
+
+        def report(p) -> None:  # p: brlcli.train.Progress
+            bar.update(tasks[p.seed], completed=p.step, reward=p.mean_reward, td=p.td_error, comps=p.components)
+
+        try:
+            results = train_many(cfg, seed_list, out, workers=workers, resume=resume, progress=report)
+        except KeyboardInterrupt:
+            console.print(f"interrupted: finished episodes are checkpointed; continue with --resume --out {out}")
+            raise typer.Exit(130) from None
+    for r in results:
+        s = r["summary"]
+        ev = s.get("eval")
+        line = (f"seed {s['seed']}: {s['steps']} steps, {s['episodes']} episodes, {s['components']} components, "
+                f"{s['steps_per_s']:.0f} steps/s")
+        if ev:
+            line += f", lane-keeping success {ev['success_rate']:.0%} ({ev['town']})"
+        console.print(line)
+    typer.echo(str(out))
+
+
+def raise_input(message: str) -> None:
+    """Raise the one-line input error the entry point turns into exit code 2."""
+    from brlcli.errors import BrlInputError
+
+    raise BrlInputError(message)
+
+
 def main() -> None:
     """Entry point: run the app; bad input prints one line and exits with code 2."""
     from brlcli.errors import BrlInputError

@@ -1,0 +1,604 @@
+"""The Bayesian RL agent of Gharaee et al. (ICPR 2020, Section III), after Firouzi et al. (2012).
+
+Where each paper equation lives (the details the paper leaves open follow docs/brl-math.md):
+
+- p(s|m), the NIW posterior predictive Student-t with dof nu' = nu - D + 1 and scale
+  Sigma = (kappa + 1) / (kappa nu') S: `student_t_logpdf` (stateless) and `BayesianAgent._log_lik` (hot path,
+  all components in one batched pass), exposed as `log_likelihoods(agent, state)`. Always in log space.
+- eq. 2 (offset qhat), eq. 3 (p(m|a)), eq. 4 (p(a)): `BayesianAgent._probability_tables`.
+- eq. 1 (p(a|s)): `BayesianAgent.action_probabilities`.
+- eq. 11 (tau-greedy behaviour policy): `BayesianAgent.act`.
+- Algorithm 1 with eqs. 5 (TD error), 6 (a'), 7 (m' via p(m|a',s')), 9 (weight w), 10 (p(m|not a, s)),
+  8 (Q update), the fractional NIW update (`niw_update`, `chol_rank1_update`) and component creation:
+  `BayesianAgent.learn`; the schedules X <- X + rate (final - X) close each learn() call.
+
+Numerics: densities are log-densities shifted by their maximum before they enter a normalised product
+(log-sum-exp); a zero normaliser falls back to the uniform distribution; each component keeps its scatter S,
+the Cholesky factor L of S (rank-1 updated) and, as a cache refreshed after each change, L^-1, so the
+likelihoods of all M components are one batched matrix-vector product and no Python loop runs over M.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.linalg import solve_triangular
+from scipy.special import gammaln
+
+from brlcli.agent.params import BRLParams
+from brlcli.errors import BrlInputError
+
+FORMAT_VERSION = 1
+"""Version of the `.npz` model file written by `BayesianAgent.save`."""
+
+_INITIAL_CAPACITY = 16
+"""Preallocated component slots of a new agent; doubled on demand up to `max_components`."""
+
+WEIGHT_CASES = ("good", "bad", "neutral", "created", "capacity")
+
+
+@dataclass(frozen=True)
+class LearnStep:
+    """What one `BayesianAgent.learn` call did."""
+
+    td_error: float
+    """delta = r_t + gamma Q[a', m'] - Q[a_t, m_t] (eq. 5)."""
+    component: int
+    """Index of the component updated, or created."""
+    created: bool
+    weight: float
+    """The weight w applied (eq. 9); nan when a component was created, 0.0 when skipped at capacity."""
+    weight_case: str
+    """'good' (delta > T_u), 'bad' (delta < T_l), 'neutral', 'created', or 'capacity' (creation refused)."""
+    n_components: int
+    """Number of components after the step."""
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Stateless numerics
+# ----------------------------------------------------------------------------------------------------------
+
+def forward_substitution(chol: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve chol @ z = rhs for stacked lower-triangular chol (..., D, D) and rhs (..., D), looping over D only."""
+    chol = np.asarray(chol, dtype=float)
+    rhs = np.asarray(rhs, dtype=float)
+    shape = np.broadcast_shapes(chol.shape[:-1], rhs.shape)
+    z = np.array(np.broadcast_to(rhs, shape), dtype=float)
+    dim = chol.shape[-1]
+    for i in range(dim):
+        z[..., i] /= chol[..., i, i]
+        if i + 1 < dim:
+            z[..., i + 1:] -= chol[..., i + 1:, i] * z[..., i, None]
+    return z
+
+
+def student_t_log_normaliser(chol: np.ndarray, kappa: np.ndarray, nu: np.ndarray) -> np.ndarray:
+    """Per-component log normaliser of St(mu, (kappa+1)/(kappa nu') L L^T, nu'), nu' = nu - D + 1."""
+    chol = np.asarray(chol, dtype=float)
+    kappa = np.asarray(kappa, dtype=float)
+    nu = np.asarray(nu, dtype=float)
+    dim = chol.shape[-1]
+    dof = nu - dim + 1.0
+    scale = (kappa + 1.0) / (kappa * dof)
+    log_det_sigma = dim * np.log(scale) + 2.0 * np.log(np.diagonal(chol, axis1=-2, axis2=-1)).sum(axis=-1)
+    return (gammaln(0.5 * (dof + dim)) - gammaln(0.5 * dof) - 0.5 * dim * np.log(dof * np.pi)
+            - 0.5 * log_det_sigma)
+
+
+def student_t_logpdf(states: np.ndarray, means: np.ndarray, chol: np.ndarray, kappa: np.ndarray,
+                     nu: np.ndarray) -> np.ndarray:
+    """log p(s|m) of states (N, D) or (D,) under M components (chol: Cholesky factors of S): (N, M) or (M,)."""
+    states = np.asarray(states, dtype=float)
+    means = np.asarray(means, dtype=float)
+    kappa = np.asarray(kappa, dtype=float)
+    nu = np.asarray(nu, dtype=float)
+    single = states.ndim == 1
+    states2 = np.atleast_2d(states)
+    dim = means.shape[-1]
+    dof = nu - dim + 1.0
+    inv_scale = kappa * dof / (kappa + 1.0)  # Sigma^-1 = inv_scale * S^-1
+    z = forward_substitution(chol, states2[:, None, :] - means[None, :, :])
+    maha = np.einsum("nmd,nmd->nm", z, z) * inv_scale
+    out = student_t_log_normaliser(chol, kappa, nu) - 0.5 * (dof + dim) * np.log1p(maha / dof)
+    return out[0] if single else out
+
+
+def chol_rank1_update(chol: np.ndarray, x: np.ndarray) -> None:
+    """In place: replace lower-triangular chol (D, D) by the Cholesky factor of chol chol^T + x x^T."""
+    x = np.array(x, dtype=float)
+    dim = x.shape[0]
+    for k in range(dim):
+        xk = float(x[k])
+        if xk == 0.0:  # the rotation is the identity
+            continue
+        lkk = float(chol[k, k])
+        r = math.hypot(lkk, xk)
+        c = r / lkk
+        s = xk / lkk
+        chol[k, k] = r
+        if k + 1 < dim:
+            col = chol[k + 1:, k]
+            col += s * x[k + 1:]
+            col /= c
+            tail = x[k + 1:]
+            tail *= c
+            tail -= s * col
+
+
+def niw_update(mean: np.ndarray, kappa: float, nu: float, scatter: np.ndarray, chol: np.ndarray,
+               x: np.ndarray, w: float) -> tuple[float, float]:
+    """In place: absorb x with fractional count w into (mean, scatter, chol); return the new (kappa, nu)."""
+    if not (math.isfinite(w) and w >= 0.0):
+        raise ValueError(f"NIW update weight must be finite and >= 0, got {w}")
+    if w == 0.0:
+        return kappa, nu
+    d = np.asarray(x, dtype=float) - mean
+    coef = kappa * w / (kappa + w)  # uses the old kappa; d uses the old mean
+    scatter += coef * np.outer(d, d)
+    chol_rank1_update(chol, math.sqrt(coef) * d)
+    mean += (w / (kappa + w)) * d
+    return kappa + w, nu + w
+
+
+def _normalise(x: np.ndarray, axis: int = -1) -> np.ndarray:
+    """x / sum(x) along axis; where the sum is not positive and finite, the uniform distribution."""
+    total = x.sum(axis=axis, keepdims=True)
+    ok = (total > 0.0) & np.isfinite(total)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = x / total
+    if not ok.all():
+        out = np.where(ok, out, 1.0 / x.shape[axis])
+    return out
+
+
+def _shifted_likelihood(log_lik: np.ndarray) -> np.ndarray:
+    """exp(log_lik - max log_lik): likelihoods up to a common factor (all ones if nothing is finite)."""
+    top = log_lik.max()
+    if not math.isfinite(top):
+        return np.ones_like(log_lik)
+    return np.exp(log_lik - top)
+
+
+def _validated_state(state: Any, dim: int, what: str) -> np.ndarray:
+    """A finite float vector of length dim, or ValueError."""
+    arr = np.asarray(state, dtype=float)
+    if arr.shape != (dim,):
+        raise ValueError(f"{what} must have shape ({dim},), got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{what} contains NaN or infinity")
+    return arr
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The agent
+# ----------------------------------------------------------------------------------------------------------
+
+class BayesianAgent:
+    """Mixture of NIW components with a Q column each; `learn` is Algorithm 1 of the paper."""
+
+    def __init__(self, state_dim: int = 30, n_actions: int = 4, params: BRLParams | None = None) -> None:
+        """A fresh model: one component with mean 1/D, nu = D, kappa = D + 1, S = init_scatter I, Q = init_q."""
+        if isinstance(state_dim, bool) or not isinstance(state_dim, int | np.integer) or state_dim < 1:
+            raise ValueError(f"state_dim must be a positive integer, got {state_dim!r}")
+        if isinstance(n_actions, bool) or not isinstance(n_actions, int | np.integer) or n_actions < 1:
+            raise ValueError(f"n_actions must be a positive integer, got {n_actions!r}")
+        params = BRLParams() if params is None else params
+        if not isinstance(params, BRLParams):
+            raise ValueError(f"params must be a BRLParams, got {type(params).__name__}")
+        self._dim = int(state_dim)
+        self._n_actions = int(n_actions)
+        self._params = params
+        self._alpha = params.alpha_init
+        self._tau = params.tau_init
+        self._rho = params.rho_init
+        self._steps = 0
+        self._n = 0
+        self._allocate(min(_INITIAL_CAPACITY, params.max_components))
+        self._add_component(np.full(self._dim, 1.0 / self._dim))
+
+    # -- storage ---------------------------------------------------------------------------------------------
+
+    def _allocate(self, capacity: int) -> None:
+        """(Re)allocate every per-component array with `capacity` slots, keeping the first n components."""
+        dim, n = self._dim, self._n
+        old = getattr(self, "_mean", None)
+        new = {
+            "_mean": np.zeros((capacity, dim)),
+            "_kappa": np.zeros(capacity),
+            "_nu": np.zeros(capacity),
+            "_scatter": np.zeros((capacity, dim, dim)),
+            "_chol": np.zeros((capacity, dim, dim)),
+            "_chol_inv": np.zeros((capacity, dim, dim)),
+            "_log_norm": np.zeros(capacity),
+            "_inv_scale": np.zeros(capacity),
+            "_dof": np.ones(capacity),
+        }
+        for name, arr in new.items():
+            if old is not None and n:
+                arr[:n] = getattr(self, name)[:n]
+            setattr(self, name, arr)
+        q = np.zeros((self._n_actions, capacity))
+        if old is not None and n:
+            q[:, :n] = self._q[:, :n]
+        self._q = q
+
+    def _capacity(self) -> int:
+        """Number of preallocated component slots."""
+        return self._mean.shape[0]
+
+    def _refresh(self, m: int) -> None:
+        """Recompute the cached L^-1, log normaliser and Mahalanobis scale of component m from (L, kappa, nu)."""
+        dim = self._dim
+        chol = self._chol[m]
+        self._chol_inv[m] = solve_triangular(chol, np.eye(dim), lower=True, check_finite=False)
+        kappa, nu = float(self._kappa[m]), float(self._nu[m])
+        dof = nu - dim + 1.0
+        scale = (kappa + 1.0) / (kappa * dof)
+        log_det_sigma = dim * math.log(scale) + 2.0 * float(np.log(np.diagonal(chol)).sum())
+        self._log_norm[m] = (math.lgamma(0.5 * (dof + dim)) - math.lgamma(0.5 * dof)
+                             - 0.5 * dim * math.log(dof * math.pi) - 0.5 * log_det_sigma)
+        self._inv_scale[m] = 1.0 / scale
+        self._dof[m] = dof
+
+    def _add_component(self, mean: np.ndarray) -> int:
+        """Append a component at `mean` (nu = D, kappa = D + 1, S = init_scatter I, Q = init_q); return its index."""
+        p = self._params
+        if self._n >= self._capacity():
+            self._allocate(min(2 * self._capacity(), p.max_components))
+        m, dim = self._n, self._dim
+        self._mean[m] = mean
+        self._nu[m] = dim
+        self._kappa[m] = dim + 1
+        self._scatter[m] = p.init_scatter * np.eye(dim)
+        self._chol[m] = math.sqrt(p.init_scatter) * np.eye(dim)
+        self._q[:, m] = p.init_q
+        self._n = m + 1
+        self._refresh(m)
+        return m
+
+    # -- read-only state -------------------------------------------------------------------------------------
+
+    @property
+    def params(self) -> BRLParams:
+        """The agent's parameters."""
+        return self._params
+
+    @property
+    def state_dim(self) -> int:
+        """Dimension D of the state vector."""
+        return self._dim
+
+    @property
+    def n_actions(self) -> int:
+        """Number of actions |A|."""
+        return self._n_actions
+
+    @property
+    def n_components(self) -> int:
+        """Number of mixture components M."""
+        return self._n
+
+    @property
+    def steps(self) -> int:
+        """Number of learn() calls so far."""
+        return self._steps
+
+    @property
+    def alpha(self) -> float:
+        """Current Q learning rate."""
+        return self._alpha
+
+    @property
+    def tau(self) -> float:
+        """Current behaviour-policy temperature."""
+        return self._tau
+
+    @property
+    def rho(self) -> float:
+        """Current l_inf distance threshold."""
+        return self._rho
+
+    @property
+    def Q(self) -> np.ndarray:
+        """Copy of the action values, shape (n_actions, M)."""
+        return self._q[:, :self._n].copy()
+
+    @property
+    def means(self) -> np.ndarray:
+        """Copy of the component means, shape (M, D)."""
+        return self._mean[:self._n].copy()
+
+    @property
+    def kappa(self) -> np.ndarray:
+        """Copy of the NIW pseudo-counts kappa, shape (M,)."""
+        return self._kappa[:self._n].copy()
+
+    @property
+    def nu(self) -> np.ndarray:
+        """Copy of the NIW degrees of freedom nu, shape (M,)."""
+        return self._nu[:self._n].copy()
+
+    @property
+    def scatter(self) -> np.ndarray:
+        """Copy of the scatter matrices S, shape (M, D, D)."""
+        return self._scatter[:self._n].copy()
+
+    @property
+    def chol(self) -> np.ndarray:
+        """Copy of the lower Cholesky factors of S, shape (M, D, D)."""
+        return self._chol[:self._n].copy()
+
+    # -- probabilities ---------------------------------------------------------------------------------------
+
+    def _log_lik(self, states: np.ndarray) -> np.ndarray:
+        """log p(s|m) for states (N, D) and every component in one batched pass: (N, M)."""
+        n = self._n
+        diff = states[:, None, :] - self._mean[:n]
+        z = np.matmul(self._chol_inv[:n], diff[..., None])[..., 0]
+        maha = np.einsum("nmd,nmd->nm", z, z) * self._inv_scale[:n]
+        dof = self._dof[:n]
+        return self._log_norm[:n] - 0.5 * (dof + self._dim) * np.log1p(maha / dof)
+
+    def _probability_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(p(m|a) as (M, A), p(a) as (A,), p(m) as (M,)) from Q + qhat (eqs. 2-4)."""
+        q = self._q[:, :self._n]
+        q_min = float(q.min())
+        q_hat = abs(q_min) / (1.0 + abs(q_min)) - q_min
+        shifted = q.T + q_hat  # (M, A), every entry >= |min Q| / (1 + |min Q|) >= 0
+        axis = 0 if self._params.variant == "paper" else 1  # reference code normalises over actions
+        p_m_given_a = _normalise(shifted, axis=axis)
+        p_a = _normalise(shifted.sum(axis=0))
+        p_m = _normalise(shifted.sum(axis=1))
+        return p_m_given_a, p_a, p_m
+
+    @staticmethod
+    def _p_action_given_state(lik: np.ndarray, p_m_given_a: np.ndarray, p_a: np.ndarray) -> np.ndarray:
+        """p(a|s) ∝ p(a) sum_m p(s|m) p(m|a) (eq. 1), lik = likelihoods up to a common factor."""
+        return _normalise(p_a * (lik @ p_m_given_a))
+
+    def action_probabilities(self, state: np.ndarray) -> np.ndarray:
+        """p(a|s) for every action (eq. 1); sums to 1."""
+        s = _validated_state(state, self._dim, "state")
+        lik = _shifted_likelihood(self._log_lik(s[None, :])[0])
+        p_m_given_a, p_a, _ = self._probability_tables()
+        return self._p_action_given_state(lik, p_m_given_a, p_a)
+
+    def act(self, state: np.ndarray, rng: np.random.Generator, greedy: bool = False) -> int:
+        """Behaviour policy (eq. 11): the greedy action gets (1 - tau)/|A| + tau, the others (1 - tau)/|A|."""
+        greedy_action = int(np.argmax(self.action_probabilities(state)))
+        if greedy:
+            return greedy_action
+        policy = np.full(self._n_actions, (1.0 - self._tau) / self._n_actions)
+        policy[greedy_action] += self._tau
+        cumulative = np.cumsum(policy)
+        u = rng.random() * cumulative[-1]
+        return int(min(np.searchsorted(cumulative, u, side="right"), self._n_actions - 1))
+
+    # -- learning --------------------------------------------------------------------------------------------
+
+    def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray) -> LearnStep:
+        """One step of Algorithm 1 on (s_t, a_t, r_t, s_{t+1}); see docs/brl-math.md 'One learning step'."""
+        p = self._params
+        s_t = _validated_state(state, self._dim, "state")
+        s_next = _validated_state(next_state, self._dim, "next_state")
+        if isinstance(action, bool) or not isinstance(action, int | np.integer) or not 0 <= action < self._n_actions:
+            raise ValueError(f"action must be an integer in [0, {self._n_actions}), got {action!r}")
+        a_t = int(action)
+        reward = float(reward)
+        if not math.isfinite(reward):
+            raise ValueError(f"reward must be finite, got {reward}")
+
+        log_lik = self._log_lik(np.stack([s_t, s_next]))  # (2, M)
+        p_m_given_a, p_a, p_m = self._probability_tables()
+        with np.errstate(divide="ignore"):
+            log_p_m_given_a = np.log(p_m_given_a)
+
+        # 1. a' = argmax_a p(a|s_{t+1}) (eq. 6), m' = argmax_m p(m|a', s_{t+1}) (eq. 7)
+        lik_next = _shifted_likelihood(log_lik[1])
+        a_next = int(np.argmax(self._p_action_given_state(lik_next, p_m_given_a, p_a)))
+        m_next = int(np.argmax(log_lik[1] + log_p_m_given_a[:, a_next]))
+        # 2. m_t = l_inf-nearest component to s_t, d_t its distance
+        dist = np.abs(self._mean[:self._n] - s_t).max(axis=1)
+        m_t = int(np.argmin(dist))
+        d_t = float(dist[m_t])
+        # 3. TD error (eq. 5); the reference code takes m_t = argmax_m p(m|a_t, s_t) here
+        m_delta = m_t if p.variant == "paper" else int(np.argmax(log_lik[0] + log_p_m_given_a[:, a_t]))
+        td_error = reward + p.gamma * float(self._q[a_next, m_next]) - float(self._q[a_t, m_delta])
+
+        if d_t < self._rho or td_error > p.T_l:
+            weight, case = self._weight(m_t, a_t, td_error, log_lik[0], p_m_given_a, p_m)
+            self._update(m_t, a_t, s_t, td_error, weight)
+            step = LearnStep(td_error, m_t, False, weight, case, 0)
+        elif self._n < p.max_components:
+            m_new = self._add_component(s_t)
+            self._q[a_t, m_new] = p.new_q_taken
+            step = LearnStep(td_error, m_new, True, math.nan, "created", 0)
+        elif p.at_capacity == "merge":
+            weight, _ = self._weight(m_t, a_t, td_error, log_lik[0], p_m_given_a, p_m)
+            self._update(m_t, a_t, s_t, td_error, weight)
+            step = LearnStep(td_error, m_t, False, weight, "capacity", 0)
+        else:  # "skip"
+            step = LearnStep(td_error, m_t, False, 0.0, "capacity", 0)
+
+        # 6. schedules
+        self._alpha += p.alpha_rate * (p.alpha_final - self._alpha)
+        self._tau += p.tau_rate * (p.tau_final - self._tau)
+        self._rho += p.rho_rate * (p.rho_final - self._rho)
+        self._steps += 1
+        return LearnStep(step.td_error, step.component, step.created, step.weight, step.weight_case, self._n)
+
+    def _weight(self, m_t: int, a_t: int, td_error: float, log_lik_t: np.ndarray, p_m_given_a: np.ndarray,
+                p_m: np.ndarray) -> tuple[float, str]:
+        """The weight w of eq. 9 for component m_t, and its case name."""
+        p = self._params
+        lik = _shifted_likelihood(log_lik_t)
+        if td_error > p.T_u:
+            return float(_normalise(lik * p_m_given_a[:, a_t])[m_t]), "good"
+        if td_error < p.T_l:
+            if self._n == 1:  # p(m|a) = 1 makes eq. 10 0/0; defined as 1 for the only component
+                return 1.0, "bad"
+            return float(_normalise(lik * (1.0 - p_m_given_a[:, a_t]))[m_t]), "bad"
+        return float(_normalise(lik * p_m)[m_t]), "neutral"
+
+    def _update(self, m: int, a_t: int, s_t: np.ndarray, td_error: float, weight: float) -> None:
+        """Q update (eq. 8) and fractional NIW update of component m with weight w."""
+        self._q[a_t, m] += self._alpha * weight * td_error
+        kappa, nu = niw_update(self._mean[m], float(self._kappa[m]), float(self._nu[m]), self._scatter[m],
+                               self._chol[m], s_t, weight)
+        self._kappa[m] = kappa
+        self._nu[m] = nu
+        self._refresh(m)
+
+    # -- persistence -----------------------------------------------------------------------------------------
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write the model to `path` (exactly that name) as a versioned .npz, atomically via a temp file."""
+        path = os.fspath(path)
+        n = self._n
+        arrays = {
+            "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
+            "params_json": np.array(json.dumps(self._params.to_dict(), sort_keys=True)),
+            "state_dim": np.array(self._dim, dtype=np.int64),
+            "n_actions": np.array(self._n_actions, dtype=np.int64),
+            "means": self._mean[:n],
+            "kappa": self._kappa[:n],
+            "nu": self._nu[:n],
+            "scatter": self._scatter[:n],
+            "chol": self._chol[:n],
+            "Q": self._q[:, :n],
+            "alpha": np.array(self._alpha),
+            "tau": np.array(self._tau),
+            "rho": np.array(self._rho),
+            "steps": np.array(self._steps, dtype=np.int64),
+        }
+        directory = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(directory):
+            raise BrlInputError(f"cannot write model file {path}: directory {directory} does not exist")
+        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=directory)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez(fh, **arrays)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> BayesianAgent:
+        """Read a model written by `save`; a missing, foreign, corrupt or wrong-version file raises BrlInputError."""
+        path = os.fspath(path)
+        try:
+            npz = np.load(path, allow_pickle=False)
+        except FileNotFoundError:
+            raise BrlInputError(f"model file {path} does not exist") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise BrlInputError(f"model file {path} is not a brl model (.npz): {_one_line(exc)}") from None
+        if not isinstance(npz, np.lib.npyio.NpzFile):
+            raise BrlInputError(f"model file {path} is a single .npy array, not a brl model (.npz)")
+        with npz:
+            try:
+                return cls._from_npz(npz, path)
+            except BrlInputError:
+                raise
+            except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+                raise BrlInputError(f"model file {path} is unreadable: {_one_line(exc)}") from None
+
+    @classmethod
+    def _from_npz(cls, npz: Any, path: str) -> BayesianAgent:
+        """Validate the arrays of an open .npz and build the agent."""
+
+        def get(key: str) -> np.ndarray:
+            """The array stored under key (object arrays refused)."""
+            if key not in npz.files:
+                raise BrlInputError(f"model file {path} lacks the entry '{key}'")
+            try:
+                return npz[key]
+            except ValueError as exc:
+                if "allow_pickle" in str(exc):
+                    raise BrlInputError(f"model file {path} holds a pickled object array '{key}' "
+                                        "(refused: pickles can run code)") from None
+                raise
+
+        def scalar(key: str, kind: str) -> Any:
+            """The 0-d array under key as a Python scalar, checking its dtype kind."""
+            arr = get(key)
+            if arr.shape != () or arr.dtype.kind not in kind:
+                raise BrlInputError(f"model file {path}: '{key}' must be a scalar of kind {kind!r}, "
+                                    f"got shape {arr.shape} dtype {arr.dtype}")
+            return arr.item()
+
+        version = scalar("format_version", "iu")
+        if version != FORMAT_VERSION:
+            raise BrlInputError(f"model file {path} has format version {version}, this brl reads {FORMAT_VERSION}")
+        try:
+            params = BRLParams.from_dict(json.loads(scalar("params_json", "U")))
+        except (ValueError, TypeError) as exc:
+            raise BrlInputError(f"model file {path} has bad parameters: {_one_line(exc)}") from None
+        dim, n_actions = scalar("state_dim", "iu"), scalar("n_actions", "iu")
+        if dim < 1 or n_actions < 1:
+            raise BrlInputError(f"model file {path} has state_dim {dim} and n_actions {n_actions}")
+        means = get("means")
+        if means.ndim != 2 or means.shape[1] != dim:
+            raise BrlInputError(f"model file {path}: means has shape {means.shape}, expected (M, {dim})")
+        n = means.shape[0]
+        if not 1 <= n <= params.max_components:
+            raise BrlInputError(f"model file {path} has {n} components, expected 1..{params.max_components}")
+        expected = {"means": (n, dim), "kappa": (n,), "nu": (n,), "scatter": (n, dim, dim), "chol": (n, dim, dim),
+                    "Q": (n_actions, n)}
+        arrays: dict[str, np.ndarray] = {}
+        for key, shape in expected.items():
+            arr = get(key)
+            if arr.shape != shape or arr.dtype != np.float64:
+                raise BrlInputError(f"model file {path}: '{key}' has shape {arr.shape} dtype {arr.dtype}, "
+                                    f"expected shape {shape} float64")
+            if not np.isfinite(arr).all():
+                raise BrlInputError(f"model file {path}: '{key}' contains NaN or infinity")
+            arrays[key] = arr
+        chol_diag = np.diagonal(arrays["chol"], axis1=1, axis2=2)
+        if (arrays["kappa"] <= 0).any() or (arrays["nu"] <= dim - 1).any() or (chol_diag <= 0).any() \
+                or np.triu(arrays["chol"], k=1).any():
+            raise BrlInputError(f"model file {path} has an invalid component (kappa <= 0, nu <= D - 1, "
+                                "or a Cholesky factor that is not lower-triangular with a positive diagonal)")
+        schedule = {key: float(scalar(key, "f")) for key in ("alpha", "tau", "rho")}
+        steps = scalar("steps", "iu")
+        if not all(math.isfinite(v) for v in schedule.values()) or steps < 0:
+            raise BrlInputError(f"model file {path} has invalid schedule values or step count")
+
+        agent = cls(int(dim), int(n_actions), params)
+        capacity = min(params.max_components, max(_INITIAL_CAPACITY, 1 << (n - 1).bit_length()))
+        agent._n = 0
+        agent._allocate(capacity)
+        agent._mean[:n] = arrays["means"]
+        agent._kappa[:n] = arrays["kappa"]
+        agent._nu[:n] = arrays["nu"]
+        agent._scatter[:n] = arrays["scatter"]
+        agent._chol[:n] = arrays["chol"]
+        agent._q[:, :n] = arrays["Q"]
+        agent._n = n
+        for m in range(n):  # cold path: the caches, computed exactly as learn() computes them
+            agent._refresh(m)
+        agent._alpha, agent._tau, agent._rho = schedule["alpha"], schedule["tau"], schedule["rho"]
+        agent._steps = int(steps)
+        return agent
+
+
+def _one_line(exc: BaseException) -> str:
+    """First line of an exception message (or its type name when empty)."""
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def log_likelihoods(agent: BayesianAgent, state: np.ndarray) -> np.ndarray:
+    """log p(s|m) of every component of `agent` for one state: shape (M,)."""
+    s = _validated_state(state, agent.state_dim, "state")
+    return agent._log_lik(s[None, :])[0]

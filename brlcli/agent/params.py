@@ -1,0 +1,109 @@
+"""Parameters of the Bayesian RL agent (paper Table 'Parameter Settings' plus documented extras)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+VARIANTS = ("paper", "reference-code")
+"""`paper`: the equations as printed. `reference-code`: Q + qhat normalised over actions per component and
+m_t = argmax_m p(m | a_t, s_t) inside the TD error, as in the authors' code (see brl-math.md)."""
+
+AT_CAPACITY_POLICIES = ("merge", "skip")
+"""What learn() does when it would create a component but `max_components` are in use:
+`merge` updates the l_inf-nearest component m_t with the usual weight rule instead (Q and NIW update);
+`skip` leaves Q and the components unchanged. Both report weight_case "capacity" and never raise."""
+
+
+@dataclass(frozen=True)
+class BRLParams:
+    """Every learning parameter of the agent; `BRLParams()` is the paper's setting."""
+
+    gamma: float = 0.9
+    """Discount ('forgetting') factor in the TD error, eq. 5."""
+    alpha_init: float = 0.99
+    """Initial Q learning rate alpha, eq. 8."""
+    alpha_rate: float = 1e-5
+    """Per-step schedule rate: alpha <- alpha + alpha_rate (alpha_final - alpha)."""
+    alpha_final: float = 0.01
+    tau_init: float = 0.5
+    """Initial temperature of the behaviour policy, eq. 11 (probability mass moved to the greedy action)."""
+    tau_rate: float = 7e-3
+    tau_final: float = 0.99
+    rho_init: float = 0.1
+    """Initial l_inf distance under which the nearest component is always updated (never a new one)."""
+    rho_rate: float = 3e-7
+    rho_final: float = 0.01
+    T_l: float = -10.0
+    """Lower TD threshold: below it the action was bad (weight p(m|not a, s); may create a component)."""
+    T_u: float = -5.0
+    """Upper TD threshold: above it the action was good (weight p(m|a, s))."""
+    variant: str = "paper"
+    """'paper' or 'reference-code' (see VARIANTS)."""
+    max_components: int = 2000
+    """Upper bound on mixture components (memory ~ 3 * 8 * D^2 bytes each: 21.6 kB at D = 30)."""
+    at_capacity: str = "merge"
+    """Behaviour when a creation is requested at max_components (see AT_CAPACITY_POLICIES)."""
+    init_scatter: float = 0.1
+    """A new component's scatter matrix is init_scatter * I."""
+    init_q: float = 0.1
+    """A new component's Q column, every action."""
+    new_q_taken: float = -1.0
+    """Q[a_t, new] of a component created after the bad action a_t."""
+
+    def __post_init__(self) -> None:
+        """Validate every field; a bad value raises ValueError naming it."""
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("variant", "at_capacity"):
+                if not isinstance(value, str):
+                    raise ValueError(f"BRLParams.{f.name} must be a string, got {value!r}")
+            elif f.name == "max_components":
+                if isinstance(value, bool) or not isinstance(value, int):
+                    raise ValueError(f"BRLParams.max_components must be an integer, got {value!r}")
+            else:
+                if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                    raise ValueError(f"BRLParams.{f.name} must be a finite number, got {value!r}")
+                object.__setattr__(self, f.name, float(value))  # ints from JSON or callers become floats
+        if self.variant not in VARIANTS:
+            raise ValueError(f"BRLParams.variant must be one of {', '.join(VARIANTS)}, got {self.variant!r}")
+        if self.at_capacity not in AT_CAPACITY_POLICIES:
+            raise ValueError(f"BRLParams.at_capacity must be one of {', '.join(AT_CAPACITY_POLICIES)}, "
+                             f"got {self.at_capacity!r}")
+        if self.max_components < 1:
+            raise ValueError(f"BRLParams.max_components must be >= 1, got {self.max_components}")
+        unit = ("gamma", "alpha_init", "alpha_final", "tau_init", "tau_final",
+                "alpha_rate", "tau_rate", "rho_rate")
+        for name in unit:
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"BRLParams.{name} must lie in [0, 1], got {value}")
+        for name in ("rho_init", "rho_final"):
+            if getattr(self, name) < 0.0:
+                raise ValueError(f"BRLParams.{name} must be >= 0, got {getattr(self, name)}")
+        if self.init_scatter <= 0.0:
+            raise ValueError(f"BRLParams.init_scatter must be > 0, got {self.init_scatter}")
+        if self.T_l > self.T_u:
+            raise ValueError(f"BRLParams.T_l ({self.T_l}) must not exceed T_u ({self.T_u})")
+
+    @classmethod
+    def reference_code(cls, **overrides: Any) -> BRLParams:
+        """The authors' code: gamma 0.8, rho_rate 3e-5, alpha never decays, variant 'reference-code'."""
+        base = cls(gamma=0.8, rho_rate=3e-5, alpha_rate=0.0, variant="reference-code")
+        return replace(base, **overrides) if overrides else base
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict of every field (JSON-serialisable)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> BRLParams:
+        """Build from a dict; unknown keys raise ValueError, missing keys take their defaults."""
+        if not isinstance(data, dict):
+            raise ValueError(f"BRLParams needs a mapping, got {type(data).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown BRLParams key(s): {', '.join(map(str, unknown))}")
+        return cls(**data)

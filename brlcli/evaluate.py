@@ -1,0 +1,53 @@
+"""Greedy evaluation of a policy on a town's lane-keeping routes (the paper's test table metrics per episode)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from brlcli.sim.gym_env import DrivingEnv
+
+EITHER_THRESHOLD = 0.2
+"""A step counts as off-road / other-lane when more than 20 % of the footprint is there (paper's table)."""
+
+
+def run_episode(env: DrivingEnv, policy: Callable[[np.ndarray], int], route: str, seed: int) -> dict[str, Any]:
+    """Drive one route greedily; per-episode success, collision and per-step off-road / other-lane shares."""
+    obs, info = env.reset(seed=seed, options={"route": route})
+    offroad, otherlane, collided, dist = [], [], False, 0.0
+    last = None
+    while True:
+        obs, _r, terminated, truncated, info = env.step(policy(obs))
+        m = info["measurements"]
+        offroad.append(m["intersection_offroad"])
+        otherlane.append(m["intersection_otherlane"])
+        collided |= info["collided"]
+        if last is not None:
+            dist += float(np.hypot(m["x"] - last[0], m["y"] - last[1]))
+        last = (m["x"], m["y"])
+        if terminated or truncated:
+            break
+    off = np.asarray(offroad) > EITHER_THRESHOLD
+    other = np.asarray(otherlane) > EITHER_THRESHOLD
+    return {"route": route, "success": bool(terminated), "collision_free": not collided, "steps": len(offroad),
+            "offroad_share": float(off.mean()), "otherlane_share": float(other.mean()),
+            "either_share": float((off | other).mean()), "distance_m": dist}
+
+
+def evaluate_lane_keeping(agent: Any, town: str = "town01", weather: int | str = 1,
+                          seed: int = 0) -> dict[str, Any]:
+    """Greedy policy of `agent` (anything with `act(state, rng, greedy=True)`) on every lane-keeping route."""
+    env = DrivingEnv(town=town, weather=weather, routes="lane_keeping")
+    rng = np.random.default_rng(seed)
+
+    def policy(obs: np.ndarray) -> int:
+        return int(agent.act(obs.astype(np.float64), rng, greedy=True))
+
+    episodes = [run_episode(env, policy, r.name, seed) for r in env.routes]
+    env.close()
+    return {"town": town, "weather": weather, "episodes": episodes,
+            "success_rate": float(np.mean([e["success"] for e in episodes])),
+            "collision_free_rate": float(np.mean([e["collision_free"] for e in episodes])),
+            "either_share": float(np.mean([e["either_share"] for e in episodes]))}

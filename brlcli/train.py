@@ -1,0 +1,323 @@
+"""Online Bayesian RL training (paper Sec. III / IV): one run per seed, with checkpoints, logs and resume.
+
+Layout of a run directory:
+    config.json      resolved configuration + brl version + git commit
+    log.csv          one row per learning step (reward and its terms, TD error, components, schedules, ...)
+    model.npz        the trained agent (written at the end)
+    summary.json     totals and the greedy evaluation on the town's lane-keeping routes
+    checkpoint/      agent + generator state at the last finished episode (resume restarts from there)
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from brlcli.agent import BayesianAgent, BRLParams
+from brlcli.errors import BrlInputError
+from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
+from brlcli.reward import RewardParams
+from brlcli.sim.gym_env import ACTION_NAMES, DrivingEnv
+from brlcli.sim.weather import get_weather
+
+LOG_COLUMNS = (
+    "step", "episode", "decision", "action", "reward", "r_collision", "r_offroad", "r_otherlane", "r_speed",
+    "r_road_view", "td_error", "component", "created", "weight", "weight_case", "components", "alpha", "tau",
+    "rho", "forward_speed_kmh", "intersection_offroad", "intersection_otherlane", "x", "y",
+)
+CHECKPOINT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that determines a training run (saved as `config.json`)."""
+
+    town: str = "town01"
+    weather: int = 1
+    input: str = "gt"
+    steps: int = 4500
+    seed: int = 0
+    route_kinds: tuple[str, ...] = ("straight", "right_curve", "left_curve")
+    variant: str = "paper"
+    target_speed_kmh: float = 20.0
+    evaluate: bool = True
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.input not in ("gt", "estimated"):
+            raise BrlInputError(f"--input must be gt or estimated, not '{self.input}'")
+        if self.steps < 1:
+            raise BrlInputError("--steps must be at least 1")
+        if self.variant not in ("paper", "reference-code"):
+            raise BrlInputError(f"unknown variant '{self.variant}'; choose paper or reference-code")
+        get_weather(self.weather)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        d = asdict(self)
+        d["route_kinds"] = list(self.route_kinds)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
+        """Inverse of `to_dict`; unknown keys are an error."""
+        known = {f.name for f in fields(cls)}
+        extra = set(d) - known
+        if extra:
+            raise BrlInputError(f"unknown training config keys: {', '.join(sorted(extra))}")
+        d = dict(d)
+        if "route_kinds" in d:
+            d["route_kinds"] = tuple(d["route_kinds"])
+        return cls(**d)
+
+    def agent_params(self) -> BRLParams:
+        """The agent's parameters for this run."""
+        base = BRLParams.reference_code() if self.variant == "reference-code" else BRLParams()
+        return BRLParams.from_dict({**base.to_dict(), **self.params}) if self.params else base
+
+
+@dataclass
+class Progress:
+    """A progress report from a running training (for bars and logs)."""
+
+    seed: int
+    step: int
+    steps: int
+    episode: int
+    mean_reward: float
+    td_error: float
+    components: int
+    done: bool = False
+
+
+def _episode_seed(seed: int, episode: int) -> int:
+    return int(np.random.default_rng([seed, episode, 7]).integers(2**31))
+
+
+def _make_env(cfg: TrainConfig) -> DrivingEnv:
+    if cfg.input == "estimated":
+        raise BrlInputError("--input estimated needs the segmentation net of `brl train-seg`, which is not built "
+                            "yet; use --input gt")
+    return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training", kinds=cfg.route_kinds,
+                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh))
+
+
+def _log_row(step: int, episode: int, decision: int, action: int, reward: float, terms: dict, learn: Any,
+             agent: BayesianAgent, m: dict) -> list:
+    return [step, episode, decision, ACTION_NAMES[action], reward, terms["collision"], terms["offroad"],
+            terms["otherlane"], terms["speed"], terms["road_view"], learn.td_error, learn.component,
+            int(learn.created), learn.weight, learn.weight_case, agent.n_components, agent.alpha, agent.tau,
+            agent.rho, m["forward_speed_kmh"], m["intersection_offroad"], m["intersection_otherlane"], m["x"], m["y"]]
+
+
+def _format(v: Any) -> str:
+    return repr(float(v)) if isinstance(v, float | np.floating) else str(v)
+
+
+class _Checkpoint:
+    """Agent + generator state at an episode boundary, written atomically."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.dir = run_dir / "checkpoint"
+
+    def save(self, agent: BayesianAgent, rng: np.random.Generator, step: int, episode: int, log_rows: int,
+             stats: dict) -> None:
+        self.dir.mkdir(parents=True, exist_ok=True)
+        agent.save(self.dir / "agent.npz")
+        atomic_write_json(self.dir / "state.json", {"version": CHECKPOINT_VERSION, "step": step, "episode": episode,
+                                                   "log_rows": log_rows, "rng": rng.bit_generator.state,
+                                                   "stats": stats})
+
+    def load(self) -> tuple[BayesianAgent, np.random.Generator, dict] | None:
+        state_path = self.dir / "state.json"
+        if not state_path.exists():
+            return None
+        try:
+            state = json.loads(state_path.read_text())
+        except json.JSONDecodeError:
+            raise BrlInputError(f"checkpoint {state_path} is corrupt; delete the run directory to start over") from None
+        if state.get("version") != CHECKPOINT_VERSION:
+            raise BrlInputError(f"checkpoint {state_path} has version {state.get('version')}, this brl reads "
+                                f"{CHECKPOINT_VERSION}")
+        agent = BayesianAgent.load(self.dir / "agent.npz")
+        rng = np.random.default_rng()
+        rng.bit_generator.state = state["rng"]
+        return agent, rng, state
+
+
+def _truncate_log(path: Path, rows: int) -> None:
+    """Keep the header and the first `rows` data rows of a log (drops rows of an unfinished episode)."""
+    if not path.exists():
+        return
+    lines = path.read_text().splitlines(keepends=True)
+    atomic_write_bytes(path, "".join(lines[: rows + 1]).encode())
+
+
+def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
+              progress: Callable[[Progress], None] | None = None) -> dict[str, Any]:
+    """Train one agent; returns the summary. Resumable from the last finished episode."""
+    run_dir = Path(run_dir)
+    config_path = run_dir / "config.json"
+    record = provenance(cfg.to_dict())
+    if config_path.exists():
+        if not resume:
+            raise BrlInputError(f"{run_dir} already holds a training run; pass --resume or choose another --out")
+        saved = json.loads(config_path.read_text())["config"]
+        if saved != cfg.to_dict():
+            raise BrlInputError(f"{run_dir} holds a run with another configuration; resume it with the same options")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if not config_path.exists():
+        atomic_write_json(config_path, record)
+    if (run_dir / "summary.json").exists():
+        return json.loads((run_dir / "summary.json").read_text())
+    env = _make_env(cfg)
+    ckpt = _Checkpoint(run_dir)
+    loaded = ckpt.load() if resume else None
+    log_path = run_dir / "log.csv"
+    if loaded is None:
+        agent = BayesianAgent(state_dim=30, n_actions=4, params=cfg.agent_params())
+        rng = np.random.default_rng([cfg.seed, 1])
+        step, episode, stats = 0, 0, {"episodes": 0, "goals": 0, "reward_sum": 0.0, "wall_s": 0.0}
+        atomic_write_bytes(log_path, (",".join(LOG_COLUMNS) + "\n").encode())
+    else:
+        agent, rng, state = loaded
+        step, episode, stats = state["step"], state["episode"], state["stats"]
+        _truncate_log(log_path, state["log_rows"])
+    t0 = time.perf_counter() - stats["wall_s"]
+    recent: list[float] = []
+    td = 0.0
+    with open(log_path, "a", newline="") as fh:
+        while step < cfg.steps:
+            obs, _ = env.reset(seed=_episode_seed(cfg.seed, episode))
+            state = obs.astype(np.float64)
+            buffer = io.StringIO()
+            rows = csv.writer(buffer)
+            decision, reached = 0, False
+            while step < cfg.steps:
+                action = agent.act(state, rng)
+                obs, reward, terminated, truncated, info = env.step(action)
+                next_state = obs.astype(np.float64)
+                if decision > 0:  # no learning on the first decision after a reset
+                    learn = agent.learn(state, action, reward, next_state)
+                    step += 1
+                    td = learn.td_error
+                    rows.writerow([_format(v) for v in _log_row(step, episode, decision, action, reward,
+                                                                info["reward_terms"], learn, agent,
+                                                                info["measurements"])])
+                    stats["reward_sum"] += reward
+                    recent = [*recent, reward][-100:]
+                    if progress and step % 25 == 0:
+                        progress(Progress(cfg.seed, step, cfg.steps, episode, float(np.mean(recent)), td,
+                                          agent.n_components))
+                decision += 1
+                state = next_state
+                if terminated or truncated:
+                    reached = terminated
+                    break
+            fh.write(buffer.getvalue())
+            fh.flush()
+            episode += 1
+            stats["episodes"] = episode
+            stats["goals"] += int(reached)
+            stats["wall_s"] = time.perf_counter() - t0
+            ckpt.save(agent, rng, step, episode, step, stats)
+    wall = time.perf_counter() - t0
+    agent.save(run_dir / "model.npz")
+    summary: dict[str, Any] = {
+        "seed": cfg.seed, "steps": step, "episodes": stats["episodes"], "episodes_reaching_goal": stats["goals"],
+        "mean_reward": stats["reward_sum"] / max(step, 1), "components": agent.n_components,
+        "alpha": agent.alpha, "tau": agent.tau, "rho": agent.rho, "wall_s": wall, "steps_per_s": step / wall,
+    }
+    env.close()
+    if cfg.evaluate:
+        from brlcli.evaluate import evaluate_lane_keeping
+
+        ev = evaluate_lane_keeping(agent, town=cfg.town, weather=cfg.weather)
+        summary["eval"] = ev
+    atomic_write_json(run_dir / "summary.json", {**provenance(cfg.to_dict()), "summary": summary})
+    if progress:
+        progress(Progress(cfg.seed, step, cfg.steps, episode, float(np.mean(recent)) if recent else 0.0, td,
+                          agent.n_components, done=True))
+    return {**provenance(cfg.to_dict()), "summary": summary}
+
+
+def parse_seeds(text: str) -> list[int]:
+    """'0-8' or '0,3,5' or '4' -> list of seeds."""
+    out: list[int] = []
+    try:
+        for part in text.split(","):
+            part = part.strip()
+            if "-" in part[1:]:
+                a, b = part.split("-", 1) if not part.startswith("-") else (part, "")
+                lo, hi = int(a), int(b)
+                if hi < lo:
+                    raise ValueError
+                out.extend(range(lo, hi + 1))
+            elif part:
+                out.append(int(part))
+    except ValueError:
+        raise BrlInputError(f"--seeds '{text}' is not a list like 0-8 or 0,2,5") from None
+    if not out or any(s < 0 for s in out):
+        raise BrlInputError(f"--seeds '{text}' must name non-negative seeds")
+    return sorted(set(out))
+
+
+def _worker(args: tuple[dict, str, bool, Any]) -> dict[str, Any]:
+    cfg_dict, run_dir, resume, queue = args
+    cfg = TrainConfig.from_dict(cfg_dict)
+    report = queue.put if queue is not None else None
+    return train_run(cfg, Path(run_dir), resume=resume, progress=report)
+
+
+def run_dir_for(out: Path, seed: int) -> Path:
+    """Directory of one seed's run inside a training output directory."""
+    return Path(out) / f"seed_{seed}"
+
+
+def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, resume: bool = False,
+               progress: Callable[[Progress], None] | None = None) -> list[dict[str, Any]]:
+    """Train one model per seed (in `workers` processes); results do not depend on the worker count."""
+    import multiprocessing as mp
+    import queue as queue_mod
+
+    out = Path(out)
+    cfgs = [TrainConfig.from_dict({**cfg.to_dict(), "seed": s}) for s in seeds]
+    for c in cfgs:  # refuse before starting anything
+        d = run_dir_for(out, c.seed)
+        if (d / "config.json").exists() and not resume:
+            raise BrlInputError(f"{d} already holds a training run; pass --resume or choose another --out")
+    if cfg.input == "estimated":
+        _make_env(cfg)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "run.json", provenance({**cfg.to_dict(), "seeds": seeds, "workers": workers}))
+    if workers <= 1 or len(seeds) == 1:
+        return [train_run(c, run_dir_for(out, c.seed), resume, progress) for c in cfgs]
+    import os
+
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")  # one BLAS thread per worker process: no oversubscription
+    ctx = mp.get_context("spawn")
+    with ctx.Manager() as manager:
+        q = manager.Queue()
+        with ctx.Pool(min(workers, len(seeds))) as pool:
+            pending = pool.map_async(_worker, [(c.to_dict(), str(run_dir_for(out, c.seed)), resume, q) for c in cfgs])
+            while True:
+                try:
+                    msg = q.get(timeout=0.2)
+                    if progress:
+                        progress(msg)
+                except queue_mod.Empty:
+                    if pending.ready():
+                        break
+            results = pending.get()
+        while not q.empty() and progress:
+            progress(q.get())
+    return results
