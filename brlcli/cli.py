@@ -80,7 +80,7 @@ def train(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from brlcli.sim.weather import get_weather
-    from brlcli.train import TrainConfig, parse_seeds, train_many
+    from brlcli.train import TrainConfig, check_inputs, parse_seeds, train_many
 
     if workers < 1:
         raise_input("--workers must be at least 1")
@@ -90,6 +90,7 @@ def train(
     from brlcli.sim.town import load_town
 
     load_town(town)
+    check_inputs(cfg)
     console = Console(stderr=True)
     columns = (TextColumn("seed {task.fields[seed]}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("reward {task.fields[reward]:7.2f}  TD {task.fields[td]:8.2f}  comps {task.fields[comps]}"),

@@ -102,10 +102,15 @@ def _episode_seed(seed: int, episode: int) -> int:
     return int(np.random.default_rng([seed, episode, 7]).integers(2**31))
 
 
-def _make_env(cfg: TrainConfig) -> DrivingEnv:
+def check_inputs(cfg: TrainConfig) -> None:
+    """Fail early, with one line, on inputs a run could only reject after it started."""
     if cfg.input == "estimated":
         raise BrlInputError("--input estimated needs the segmentation net of `brl train-seg`, which is not built "
                             "yet; use --input gt")
+
+
+def _make_env(cfg: TrainConfig) -> DrivingEnv:
+    check_inputs(cfg)
     return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training", kinds=cfg.route_kinds,
                       reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh))
 
@@ -157,8 +162,8 @@ def _truncate_log(path: Path, rows: int) -> None:
     """Keep the header and the first `rows` data rows of a log (drops rows of an unfinished episode)."""
     if not path.exists():
         return
-    lines = path.read_text().splitlines(keepends=True)
-    atomic_write_bytes(path, "".join(lines[: rows + 1]).encode())
+    lines = path.read_bytes().split(b"\n")
+    atomic_write_bytes(path, b"".join(line + b"\n" for line in lines[: rows + 1]))
 
 
 def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
@@ -199,7 +204,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
             obs, _ = env.reset(seed=_episode_seed(cfg.seed, episode))
             state = obs.astype(np.float64)
             buffer = io.StringIO()
-            rows = csv.writer(buffer)
+            rows = csv.writer(buffer, lineterminator="\n")
             decision, reached = 0, False
             while step < cfg.steps:
                 action = agent.act(state, rng)
@@ -294,8 +299,7 @@ def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, 
         d = run_dir_for(out, c.seed)
         if (d / "config.json").exists() and not resume:
             raise BrlInputError(f"{d} already holds a training run; pass --resume or choose another --out")
-    if cfg.input == "estimated":
-        _make_env(cfg)
+    check_inputs(cfg)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "run.json", provenance({**cfg.to_dict(), "seeds": seeds, "workers": workers}))
     if workers <= 1 or len(seeds) == 1:

@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 import zipfile
 from dataclasses import dataclass
 from typing import Any
@@ -34,6 +33,7 @@ from scipy.special import gammaln
 
 from brlcli.agent.params import BRLParams
 from brlcli.errors import BrlInputError
+from brlcli.npzio import save_npz
 
 FORMAT_VERSION = 1
 """Version of the `.npz` model file written by `BayesianAgent.save`."""
@@ -481,17 +481,7 @@ class BayesianAgent:
         directory = os.path.dirname(os.path.abspath(path))
         if not os.path.isdir(directory):
             raise BrlInputError(f"cannot write model file {path}: directory {directory} does not exist")
-        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=directory)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **arrays)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        save_npz(path, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> BayesianAgent:

@@ -1,0 +1,34 @@
+"""Byte-reproducible `.npz` files: the same arrays always give the same bytes (no zip timestamps)."""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from brlcli.provenance import atomic_write_bytes
+
+_EPOCH = (1980, 1, 1, 0, 0, 0)
+
+
+def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    """An uncompressed .npz archive of `arrays` (readable by `np.load(allow_pickle=False)`), fixed timestamps."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
+        for name, value in arrays.items():
+            arr = np.asarray(value)
+            if arr.dtype == object:
+                raise ValueError(f"array '{name}' has dtype object; npz files here never hold pickles")
+            member = io.BytesIO()
+            np.lib.format.write_array(member, arr, allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=_EPOCH)
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, member.getvalue())
+    return buf.getvalue()
+
+
+def save_npz(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write a byte-reproducible .npz atomically (temporary file, then rename)."""
+    atomic_write_bytes(Path(path), npz_bytes(arrays))

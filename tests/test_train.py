@@ -1,0 +1,104 @@
+"""Training: determinism, resume after an interruption, model sets, CLI errors, and that the agent learns."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from brlcli.agent import BayesianAgent
+from brlcli.errors import BrlInputError
+from brlcli.evaluate import evaluate_lane_keeping
+from brlcli.train import LOG_COLUMNS, TrainConfig, parse_seeds, train_many, train_run
+
+
+def _files(run: Path) -> tuple[bytes, bytes]:
+    return (run / "log.csv").read_bytes(), (run / "model.npz").read_bytes()
+
+
+def test_same_seed_gives_identical_log_and_model(tmp_path: Path) -> None:
+    cfg = TrainConfig(steps=80, seed=4, evaluate=False)
+    train_run(cfg, tmp_path / "a")
+    train_run(cfg, tmp_path / "b")
+    assert _files(tmp_path / "a") == _files(tmp_path / "b")
+    other = TrainConfig(steps=80, seed=5, evaluate=False)
+    train_run(other, tmp_path / "c")
+    assert _files(tmp_path / "c")[0] != _files(tmp_path / "a")[0]
+    header = (tmp_path / "a" / "log.csv").read_text().splitlines()
+    assert header[0].split(",") == list(LOG_COLUMNS) and len(header) == 81
+    cfg_saved = json.loads((tmp_path / "a" / "config.json").read_text())
+    assert cfg_saved["config"]["seed"] == 4 and "git_commit" in cfg_saved and "brl_version" in cfg_saved
+
+
+def test_interrupted_run_resumes_bit_identical(tmp_path: Path) -> None:
+    cfg = TrainConfig(steps=150, seed=1, evaluate=False)
+    train_run(cfg, tmp_path / "full")
+
+    class Stop(Exception):
+        pass
+
+    def kill_at_100(p) -> None:
+        if p.step >= 100:
+            raise Stop
+
+    with pytest.raises(Stop):
+        train_run(cfg, tmp_path / "cut", progress=kill_at_100)
+    assert not (tmp_path / "cut" / "model.npz").exists()
+    with pytest.raises(BrlInputError):
+        train_run(cfg, tmp_path / "cut")  # refuses to overwrite without resume
+    train_run(cfg, tmp_path / "cut", resume=True)
+    assert _files(tmp_path / "cut") == _files(tmp_path / "full")
+
+
+def test_model_set_does_not_depend_on_worker_count(tmp_path: Path) -> None:
+    cfg = TrainConfig(steps=40, evaluate=False)
+    train_many(cfg, [0, 1], tmp_path / "w1", workers=1)
+    train_many(cfg, [0, 1], tmp_path / "w2", workers=2)
+    for s in (0, 1):
+        assert _files(tmp_path / "w1" / f"seed_{s}") == _files(tmp_path / "w2" / f"seed_{s}")
+
+
+def test_parse_seeds() -> None:
+    assert parse_seeds("0-8") == list(range(9))
+    assert parse_seeds("3,1,1") == [1, 3]
+    for bad in ("3-1", "x", "", "-2"):
+        with pytest.raises(BrlInputError):
+            parse_seeds(bad)
+
+
+@pytest.mark.parametrize("args", [["--input", "estimated"], ["--seeds", "5-2"], ["--steps", "0"],
+                                  ["--weather", "Foggy"], ["--town", "town77"], ["--workers", "0"]])
+def test_cli_bad_input_is_one_line_exit_2(tmp_path: Path, args: list[str]) -> None:
+    r = subprocess.run([sys.executable, "-m", "brlcli.cli", "train", "--out", str(tmp_path / "o"), *args],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr
+    assert not (tmp_path / "o" / "seed_0" / "model.npz").exists()
+
+
+def test_cli_trains_and_refuses_to_overwrite(tmp_path: Path) -> None:
+    cmd = [sys.executable, "-m", "brlcli.cli", "train", "--steps", "30", "--no-evaluate", "--out", str(tmp_path)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "seed_0" / "summary.json").read_text())["summary"]
+    assert summary["steps"] == 30
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 2 and "--resume" in again.stderr
+
+
+class _Uniform:
+    def act(self, state: np.ndarray, rng: np.random.Generator, greedy: bool = True) -> int:
+        return int(rng.integers(4))
+
+
+def test_agent_beats_a_uniform_random_policy(tmp_path: Path) -> None:
+    """A small budget (1000 learning steps, seeds 0-2) already drives the lane-keeping routes better than chance."""
+    random_rate = evaluate_lane_keeping(_Uniform())["success_rate"]
+    rates = []
+    for seed in (0, 1, 2):
+        train_run(TrainConfig(steps=1000, seed=seed, evaluate=False), tmp_path / str(seed))
+        agent = BayesianAgent.load(tmp_path / str(seed) / "model.npz")
+        rates.append(evaluate_lane_keeping(agent)["success_rate"])
+    assert np.mean(rates) >= random_rate + 0.2, (rates, random_rate)
