@@ -117,6 +117,80 @@ def train(
     typer.echo(str(out))
 
 
+CORL_TRAFFIC = {"town01": (20, 50), "town02": (15, 50)}
+
+
+@app.command()
+def collect(
+    town: Annotated[str, typer.Option(help="Town to drive in.")] = "town01",
+    weathers: Annotated[str, typer.Option(help="Comma-separated weather ids or names, cycled per episode.")]
+    = "1,3,6,8",
+    episodes: Annotated[int | None, typer.Option(help="Number of episodes (one bag each).")] = None,
+    frames: Annotated[int | None, typer.Option(help="Total recorded frames (alternative to --episodes).")] = None,
+    episode_frames: Annotated[int, typer.Option(help="Recorded frames per episode.")] = 300,
+    every: Annotated[int, typer.Option(help="Record every N-th simulated frame (10 fps / N).")] = 1,
+    seed: Annotated[int, typer.Option(help="Seed of routes, noise and traffic.")] = 0,
+    out: Annotated[Path, typer.Option("--out", help="Output directory (episode_NNNNN/ bags).")] = Path("data/town01"),
+    storage: Annotated[str, typer.Option(help="Bag storage: mcap (zstd chunks) or sqlite3.")] = "mcap",
+    traffic: Annotated[bool, typer.Option("--traffic", help="CoRL2017 traffic (town01 20+50, town02 15+50).")]
+    = False,
+    noise: Annotated[bool, typer.Option(help="Inject steering noise (the expert recovers; off-centre views).")]
+    = True,
+    depth: Annotated[bool, typer.Option(help="Record the depth image too.")] = True,
+    width: Annotated[int, typer.Option(help="Camera width, px.")] = 200,
+    height: Annotated[int, typer.Option(help="Camera height, px.")] = 88,
+    resume: Annotated[bool, typer.Option("--resume", help="Skip episodes already recorded in --out.")] = False,
+) -> None:
+    """Drive with the privileged autopilot and record RGB, labels, depth, measurements to ROS 2 bags."""
+    import math
+    from dataclasses import asdict
+
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from brlcli.collect import CollectConfig, check_output
+    from brlcli.collect import collect as run_collect
+    from brlcli.sim.camera import CameraConfig
+    from brlcli.sim.town import load_town
+    from brlcli.sim.weather import get_weather
+
+    name = load_town(town).name
+    wl = tuple(get_weather(w.strip()).id for w in weathers.split(",") if w.strip())
+    if episodes is not None and frames is not None:
+        raise_input("give --episodes or --frames, not both")
+    if frames is not None:
+        if frames < 1:
+            raise_input("--frames must be at least 1")
+        episodes = math.ceil(frames / episode_frames)
+    try:
+        camera = asdict(CameraConfig(width=width, height=height))
+    except ValueError as exc:
+        raise_input(str(exc))
+    vehicles, pedestrians = CORL_TRAFFIC.get(name, (15, 50)) if traffic else (0, 0)
+    cfg = CollectConfig(town=town, weathers=wl, episodes=10 if episodes is None else episodes, episode_frames=episode_frames, every=every,
+                        seed=seed, storage=storage, vehicles=vehicles, pedestrians=pedestrians, noise=noise,
+                        depth=depth, camera=camera)
+    check_output(cfg, out, resume)
+    console = Console(stderr=True)
+    total = cfg.episodes * cfg.episode_frames
+    columns = (TextColumn("recording"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("{task.fields[fps]:6.0f} frames/s"), TimeElapsedColumn())
+    with Progress(*columns, console=console) as bar:
+        task = bar.add_task("", total=total, fps=0.0)
+
+        def report(_episode: int, recorded: int, fps: float) -> None:
+            bar.update(task, completed=recorded, fps=fps)
+
+        try:
+            result = run_collect(cfg, out, resume=resume, progress=report)
+        except KeyboardInterrupt:
+            console.print(f"interrupted: finished episodes are kept; continue with --resume --out {out}")
+            raise typer.Exit(130) from None
+        bar.update(task, completed=total)
+    console.print(f"{result['frames']} frames in {len(result['bags'])} bags, {result['frames_per_s']:.0f} frames/s")
+    typer.echo(str(out))
+
+
 def raise_input(message: str) -> None:
     """Raise the one-line input error the entry point turns into exit code 2."""
     from brlcli.errors import BrlInputError

@@ -132,6 +132,7 @@ class Renderer:
         rng = np.random.default_rng(12345)
         self._noise = (rng.standard_normal((256, 256)) * 0.035).astype(np.float32)
         self._noise = cv2.GaussianBlur(self._noise, (0, 0), 1.0) * 2.0
+        self._weather_cache: dict[int, dict[str, np.ndarray]] = {}
 
     # --------------------------------------------------------------------------------------------- geometry
     def _camera_pose(self, x_m: float, y_m: float, yaw_rad: float) -> tuple[np.ndarray, np.ndarray]:
@@ -258,28 +259,37 @@ class Renderer:
                 face_box.append(int(k) * 8 + int(fi))
 
     # --------------------------------------------------------------------------------------------- colour
-    def _shade(self, gcode: np.ndarray, gx: np.ndarray, gy: np.ndarray, boxes: np.ndarray, face_buf: np.ndarray,
-               hit: np.ndarray, fids: np.ndarray, face_n: list[np.ndarray], face_box: list[int], r_wc: np.ndarray,
-               depth: np.ndarray, weather: Weather) -> np.ndarray:
-        h, w = face_buf.shape
+    def _weather_tables(self, weather: Weather) -> dict[str, np.ndarray]:
+        """Per-weather constants (sky image, lit ground colours, wet-road reflection), computed once per weather."""
+        cached = self._weather_cache.get(weather.id)
+        if cached is not None:
+            return cached
         el, az = np.radians(weather.sun_elevation_deg), np.radians(weather.sun_azimuth_deg)
         sun = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         sun_col = np.asarray(weather.sun_colour)
-        img = np.empty((h, w, 3), np.float32)
-        flat = img.reshape(-1, 3)
-        # sky: gradient from horizon to zenith
         t = np.clip(self._sky_elev / 0.6, 0, 1)[..., None]
-        img[:] = (1 - t) * np.asarray(weather.sky_horizon) + t * np.asarray(weather.sky_zenith)
-        # ground
-        tex = self._noise[(gy * 4).astype(np.intp) & 255, (gx * 4).astype(np.intp) & 255]
-        base = GROUND_COLOURS[gcode] * (1.0 + tex[:, None])
+        sky = ((1 - t) * np.asarray(weather.sky_horizon) + t * np.asarray(weather.sky_zenith)).astype(np.float32)
         light = weather.ambient + weather.sun_strength * max(sun[2], 0.0)
-        ground_rgb = base * light * sun_col
+        ground = GROUND_COLOURS * light * sun_col
+        ground[_ROAD_LIKE] *= 1 - 0.45 * weather.wetness
+        fres = self._fresnel.reshape(-1)[self._ground_flat][:, None]
+        reflection = (weather.wetness * 0.8 * fres * np.asarray(weather.sky_horizon)).astype(np.float32)
+        tables = {"sun": sun, "sun_col": sun_col, "sky": sky, "ground": ground.astype(np.float32),
+                  "reflection": reflection, "fog": np.asarray(weather.fog_colour, np.float32)}
+        self._weather_cache[weather.id] = tables
+        return tables
+
+    def _shade(self, gcode: np.ndarray, gx: np.ndarray, gy: np.ndarray, boxes: np.ndarray, face_buf: np.ndarray,
+               hit: np.ndarray, fids: np.ndarray, face_n: list[np.ndarray], face_box: list[int], r_wc: np.ndarray,
+               depth: np.ndarray, weather: Weather) -> np.ndarray:
+        tables = self._weather_tables(weather)
+        img = tables["sky"].copy()
+        flat = img.reshape(-1, 3)
+        # ground: lit colour per appearance code, a world-fixed texture, and sky reflections on wet road
+        tex = self._noise[(gy * 4).astype(np.intp) & 255, (gx * 4).astype(np.intp) & 255]
+        ground_rgb = tables["ground"][gcode] * (1.0 + tex[:, None])
         if weather.wetness > 0:
-            road = _ROAD_LIKE[gcode]
-            fres = self._fresnel.reshape(-1)[self._ground_flat][road][:, None]
-            wet = weather.wetness
-            ground_rgb[road] = ground_rgb[road] * (1 - 0.45 * wet) + wet * fres * 0.8 * np.asarray(weather.sky_horizon)
+            ground_rgb += tables["reflection"] * _ROAD_LIKE[gcode][:, None]
         flat[self._ground_flat] = ground_rgb
         # boxes: per-box tint, Lambert shading per face
         if len(face_box):
@@ -293,13 +303,15 @@ class Renderer:
                 hue = boxes[kbox[veh], 8]
                 col[veh] = np.stack([0.2 + 0.7 * hue, 0.25 + 0.4 * (1 - hue), 0.3 + 0.5 * np.abs(hue - 0.5)], 1)
             n_world = np.asarray(face_n) @ r_wc.T
-            lam = np.clip(n_world @ sun, 0, 1)
-            shade = (weather.ambient + weather.sun_strength * lam)[:, None] * sun_col
-            flat[hit.reshape(-1)] = (col * shade)[fids]
+            lam = np.clip(n_world @ tables["sun"], 0, 1)
+            shade = (weather.ambient + weather.sun_strength * lam)[:, None] * tables["sun_col"]
+            flat[hit.reshape(-1)] = (col * shade).astype(np.float32)[fids]
         # haze
-        fog = 1.0 - np.exp(-depth / weather.visibility_m)
-        img += fog[..., None] * (np.asarray(weather.fog_colour, np.float32) - img)
-        return np.clip(img * 255.0, 0, 255).astype(np.uint8)
+        fog = 1.0 - np.exp(depth * np.float32(-1.0 / weather.visibility_m))
+        img += fog[..., None] * (tables["fog"] - img)
+        img *= 255.0
+        np.clip(img, 0, 255, out=img)
+        return img.astype(np.uint8)
 
     def _rain(self, image: np.ndarray, weather: Weather, rng: np.random.Generator) -> None:
         h, w = image.shape[:2]

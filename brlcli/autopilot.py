@@ -1,0 +1,112 @@
+"""The privileged expert: pure-pursuit steering along a planned route, speed control, stopping for traffic, and
+CIL-style noise injection (temporary steering perturbations the expert then recovers from)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from brlcli.sim.roadnet import Command, Route
+from brlcli.sim.vehicle import MAX_STEER_DEG, WHEELBASE_M, Control
+from brlcli.sim.world import FRAME_DT_S, Measurements, World
+
+CRUISE_KMH = 22.0
+TURN_KMH = 12.0
+STOP_GAP_M = 7.0
+"""Free distance ahead (bumper to obstacle) below which the expert brakes to a stop."""
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Steering perturbations: start with `rate_per_s`, last `duration_s`, peak `amplitude` (steer units)."""
+
+    rate_per_s: float = 0.08
+    duration_s: tuple[float, float] = (0.5, 1.5)
+    amplitude: tuple[float, float] = (0.2, 0.5)
+
+
+class Autopilot:
+    """Drives a world along a route; `control()` gives the (noisy) applied and the clean expert control."""
+
+    def __init__(self, world: World, route: Route, rng: np.random.Generator, noise: NoiseConfig | None = None,
+                 cruise_kmh: float = CRUISE_KMH) -> None:
+        self.world = world
+        self.route = route
+        self.rng = rng
+        self.noise = noise
+        self.cruise_kmh = cruise_kmh
+        self._noise_left_s = 0.0
+        self._noise_total_s = 1.0
+        self._noise_peak = 0.0
+
+    def _target_speed(self, s_m: float) -> float:
+        cmd = self.route.command_at(s_m, lookahead_m=15.0)
+        if cmd == Command.REACH_GOAL:
+            return 0.0
+        ahead = self.route.points[min(int(np.searchsorted(self.route.cum_s, s_m + 12.0)), len(self.route.points) - 1)]
+        here = self.route.points[min(int(np.searchsorted(self.route.cum_s, s_m)), len(self.route.points) - 1)]
+        nxt = self.route.points[min(int(np.searchsorted(self.route.cum_s, s_m + 14.0)), len(self.route.points) - 1)]
+        d1, d2 = ahead - here, nxt - ahead
+        bend = 0.0
+        if np.linalg.norm(d1) > 1e-6 and np.linalg.norm(d2) > 1e-6:
+            bend = abs(math.atan2(d1[0] * d2[1] - d1[1] * d2[0], float(d1 @ d2)))
+        curvy = cmd in (Command.TURN_LEFT, Command.TURN_RIGHT) or bend > 0.08
+        return TURN_KMH if curvy else self.cruise_kmh
+
+    def _obstacle_gap(self, m: Measurements) -> float:
+        boxes = self.world.traffic.boxes()
+        if not len(boxes):
+            return math.inf
+        yaw = math.radians(m.yaw_deg)
+        rel = boxes[:, 1:3] - (m.x, m.y)
+        fwd = rel[:, 0] * math.cos(yaw) + rel[:, 1] * math.sin(yaw)
+        lat = -rel[:, 0] * math.sin(yaw) + rel[:, 1] * math.cos(yaw)
+        ahead = (fwd > 0) & (fwd < 25.0) & (np.abs(lat) < 1.8)
+        return float((fwd[ahead] - 2.25 - boxes[ahead, 4] / 2).min()) if ahead.any() else math.inf
+
+    def expert(self, m: Measurements) -> Control:
+        """Clean expert control for the current measurements."""
+        s, _ = self.route.project(m.x, m.y)
+        speed = m.forward_speed_kmh
+        look = max(5.0, 0.9 * abs(speed) / 3.6)
+        k = min(int(np.searchsorted(self.route.cum_s, s + look)), len(self.route.points) - 1)
+        tx, ty = self.route.points[k]
+        yaw = math.radians(m.yaw_deg)
+        alpha = math.atan2(ty - m.y, tx - m.x) - yaw
+        alpha = math.atan2(math.sin(alpha), math.cos(alpha))
+        delta = math.atan2(2.0 * WHEELBASE_M * math.sin(alpha), look)
+        steer = float(np.clip(-delta / math.radians(MAX_STEER_DEG), -1.0, 1.0))
+        target = self._target_speed(s)
+        if self._obstacle_gap(m) < STOP_GAP_M:
+            target = 0.0
+        err = target - speed
+        if target <= 0.0:
+            return Control(steer=steer, throttle=0.0, brake=1.0 if speed > 0.5 else 0.5)
+        throttle = float(np.clip(0.42 + 0.08 * err, 0.0, 0.85))
+        brake = float(np.clip(-0.1 * err, 0.0, 1.0)) if err < -4.0 else 0.0
+        return Control(steer=steer, throttle=0.0 if brake > 0 else throttle, brake=brake)
+
+    def control(self, m: Measurements) -> tuple[Control, Control]:
+        """(applied control with any injected steering noise, clean expert control)."""
+        clean = self.expert(m)
+        if self.noise is None:
+            return clean, clean
+        if self._noise_left_s <= 0.0 and self.rng.uniform() < self.noise.rate_per_s * FRAME_DT_S:
+            self._noise_total_s = float(self.rng.uniform(*self.noise.duration_s))
+            self._noise_left_s = self._noise_total_s
+            self._noise_peak = float(self.rng.uniform(*self.noise.amplitude)) * float(self.rng.choice([-1.0, 1.0]))
+        if self._noise_left_s > 0.0:
+            phase = 1.0 - self._noise_left_s / self._noise_total_s  # triangular: up, then down
+            shape = 1.0 - abs(2.0 * phase - 1.0)
+            self._noise_left_s -= FRAME_DT_S
+            noisy = Control(steer=float(np.clip(clean.steer + self._noise_peak * shape, -1, 1)),
+                            throttle=clean.throttle, brake=clean.brake, reverse=clean.reverse)
+            return noisy, clean
+        return clean, clean
+
+    def done(self, m: Measurements) -> bool:
+        """True once the car is within 2 m of the route's goal."""
+        gx, gy = self.route.goal
+        return math.hypot(m.x - gx, m.y - gy) < 2.0
