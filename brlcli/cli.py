@@ -167,7 +167,8 @@ def collect(
     except ValueError as exc:
         raise_input(str(exc))
     vehicles, pedestrians = CORL_TRAFFIC.get(name, (15, 50)) if traffic else (0, 0)
-    cfg = CollectConfig(town=town, weathers=wl, episodes=10 if episodes is None else episodes, episode_frames=episode_frames, every=every,
+    cfg = CollectConfig(town=town, weathers=wl, episodes=10 if episodes is None else episodes,
+                        episode_frames=episode_frames, every=every,
                         seed=seed, storage=storage, vehicles=vehicles, pedestrians=pedestrians, noise=noise,
                         depth=depth, camera=camera)
     check_output(cfg, out, resume)
