@@ -15,8 +15,11 @@ def env() -> DrivingEnv:
     e.close()
 
 
-def test_env_passes_gymnasium_checker(env: DrivingEnv) -> None:
+@pytest.mark.parametrize("town", ["town01", "town02"])
+def test_env_passes_gymnasium_checker(town: str) -> None:
+    env = DrivingEnv(town=town, routes="lane_keeping")
     check_env(env, skip_render_check=True)
+    env.close()
 
 
 def test_observation_is_normalised_state(env: DrivingEnv) -> None:
