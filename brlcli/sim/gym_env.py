@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -37,7 +38,8 @@ class DrivingEnv(gym.Env):
     """Lane keeping on a town's routes: observation = 30-vector state, 4 discrete actions, the paper's reward.
 
     An episode starts at a route drawn from `routes` ("training" or "lane_keeping" of the town) and ends at the
-    goal (terminated), at the route's CoRL-style timeout or when stuck (truncated).
+    goal (terminated), at the route's CoRL-style timeout or when stuck (truncated). With a `labeler` (RGB ->
+    label image, e.g. the segmentation net) the state comes from estimated labels instead of ground truth.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -45,7 +47,8 @@ class DrivingEnv(gym.Env):
     def __init__(self, town: str = "town01", weather: int | str = 1, routes: str = "training",
                  kinds: tuple[str, ...] = ("straight", "right_curve", "left_curve"), vehicles: int = 0,
                  pedestrians: int = 0, camera: CameraConfig | None = None, reward: RewardParams | None = None,
-                 render_mode: str | None = None) -> None:
+                 render_mode: str | None = None,
+                 labeler: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
         super().__init__()
         self.world = World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians, camera=camera)
         pool = {"training": self.world.town.training_routes, "lane_keeping": self.world.town.lane_keeping_routes}
@@ -55,6 +58,7 @@ class DrivingEnv(gym.Env):
         if not self.routes:
             raise BrlInputError(f"town {self.world.town.name} has no {routes} routes of kinds {', '.join(kinds)}")
         self.reward_params = reward or RewardParams()
+        self.labeler = labeler  # RGB -> estimated labels (the paper's "estimated" input); None = ground truth
         self.render_mode = render_mode
         self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(STATE_DIM,), dtype=np.float32)
         self.action_space = gym.spaces.Discrete(len(ACTIONS))
@@ -62,7 +66,8 @@ class DrivingEnv(gym.Env):
 
     def _observe(self, frame: Any) -> np.ndarray:
         self._rgb = frame.rgb
-        self._state = state_vector(frame.labels)
+        labels = frame.labels if self.labeler is None else self.labeler(frame.rgb)
+        self._state = state_vector(labels)
         return self._state.astype(np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:

@@ -1,0 +1,24 @@
+"""Where shipped trained models live (`models/` in a checkout, `brlcli/data/models` in an installed wheel)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+DEFAULT_SEGNET = "segnet.pt"
+
+
+def models_dir() -> Path:
+    """Directory of the shipped models (env `BRL_MODELS_DIR` overrides)."""
+    env = os.environ.get("BRL_MODELS_DIR")
+    if env:
+        return Path(env)
+    packaged = Path(__file__).resolve().parent / "data" / "models"
+    if packaged.is_dir():
+        return packaged
+    return Path(__file__).resolve().parents[1] / "models"
+
+
+def default_segnet_path() -> Path:
+    """The shipped segmentation net used for the 'estimated' input when no other is given."""
+    return models_dir() / DEFAULT_SEGNET
