@@ -7,10 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from brlcli.bench.metrics import FOOTPRINT_THRESHOLD as EITHER_THRESHOLD
 from brlcli.sim.gym_env import DrivingEnv
-
-EITHER_THRESHOLD = 0.2
-"""A step counts as off-road / other-lane when more than 20 % of the footprint is there (paper's table)."""
 
 
 def run_episode(env: DrivingEnv, policy: Callable[[np.ndarray], int], route: str, seed: int) -> dict[str, Any]:
@@ -33,7 +31,8 @@ def run_episode(env: DrivingEnv, policy: Callable[[np.ndarray], int], route: str
     other = np.asarray(otherlane) > EITHER_THRESHOLD
     return {"route": route, "success": bool(terminated), "collision_free": not collided, "steps": len(offroad),
             "offroad_share": float(off.mean()), "otherlane_share": float(other.mean()),
-            "either_share": float((off | other).mean()), "distance_m": dist}
+            "either_share": float((off | other).mean()), "distance_m": dist,
+            "offroad": offroad, "otherlane": otherlane}
 
 
 def evaluate_lane_keeping(agent: Any, town: str = "town01", weather: int | str = 1,
@@ -45,9 +44,14 @@ def evaluate_lane_keeping(agent: Any, town: str = "town01", weather: int | str =
     def policy(obs: np.ndarray) -> int:
         return int(agent.act(obs.astype(np.float64), rng, greedy=True))
 
+    from brlcli.bench.metrics import LaneKeepingEpisode, paper_table_row
+
     episodes = [run_episode(env, policy, r.name, seed) for r in env.routes]
     env.close()
+    row = paper_table_row([LaneKeepingEpisode(np.asarray(e["offroad"]), np.asarray(e["otherlane"]), e["success"],
+                                              not e["collision_free"], e["distance_m"]) for e in episodes])
+    for e in episodes:  # per-step series are summarised above; keep the JSON small
+        del e["offroad"], e["otherlane"]
     return {"town": town, "weather": weather, "episodes": episodes,
-            "success_rate": float(np.mean([e["success"] for e in episodes])),
-            "collision_free_rate": float(np.mean([e["collision_free"] for e in episodes])),
-            "either_share": float(np.mean([e["either_share"] for e in episodes]))}
+            "success_rate": row["success"], "collision_free_rate": row["no_collision"],
+            "either_share": row["either"], "score": row["score"], "distance_m": row["dist"]}
