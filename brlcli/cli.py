@@ -192,6 +192,93 @@ def collect(
     typer.echo(str(out))
 
 
+@app.command()
+def bench(
+    suite: Annotated[str, typer.Option(help="paper (lane-keeping table) or corl2017.")] = "paper",
+    model: Annotated[str | None, typer.Option(help="A trained BRL model (model.npz or its run directory).")] = None,
+    models: Annotated[list[str] | None, typer.Option(help="A model set: a directory of seed_N/ runs, or a glob.")]
+    = None,
+    deploy: Annotated[str, typer.Option(help="Deployment input: gt or estimated.")] = "gt",
+    segnet: Annotated[str | None, typer.Option(help="Segmentation net for --deploy estimated (default: shipped).")]
+    = None,
+    conditions: Annotated[str | None, typer.Option(help="corl2017: training,new_weather,new_town,new_town_weather; "
+                                                        "paper: unseen_town,training_town.")] = None,
+    tasks: Annotated[str | None, typer.Option(help="Comma-separated tasks (corl2017: straight,one_curve,navigation,"
+                                                   "navigation_dynamic).")] = None,
+    weathers: Annotated[str | None, typer.Option(help="Comma-separated weather ids or names.")] = None,
+    episodes: Annotated[str | None, typer.Option(help="Deterministic subset: a count (40) or a fraction (0.1).")]
+    = None,
+    workers: Annotated[int, typer.Option(help="Local worker processes.")] = 1,
+    shard: Annotated[str | None, typer.Option(help="Run slice K of N (K/N), e.g. one Docker job per shard.")] = None,
+    seed: Annotated[int, typer.Option(help="Bench seed (traffic and weather noise per episode).")] = 0,
+    out: Annotated[Path, typer.Option("--out", help="Results directory.")] = Path("runs/bench"),
+    resume: Annotated[bool, typer.Option("--resume", help="Skip episodes already in --out.")] = False,
+) -> None:
+    """Run the paper's test suite or the CoRL2017 benchmark for BRL models (the setting name follows the inputs)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.table import Table
+
+    from brlcli.bench.policies import build_policy
+    from brlcli.bench.runner import PolicySpec, find_models, prepare, run_bench, suite_version, town_versions
+    from brlcli.bench.suites import build_suite, parse_shard, subset
+    from brlcli.bench.suites import shard as take_shard
+
+    if workers < 1:
+        raise_input("--workers must be at least 1")
+    k, n = parse_shard(shard)
+    specs = take_shard(subset(build_suite(suite, conditions, tasks, weathers), episodes), k, n)
+    if deploy not in ("gt", "estimated"):
+        raise_input(f"--deploy must be gt or estimated, not '{deploy}'")
+    pols = [PolicySpec("brl", name, {"model": path, "deploy": deploy, "segnet": segnet})
+            for name, path in find_models(model, models)]
+    for p in pols:  # load every model once here: a bad file fails before anything is written
+        build_policy(p.kind, p.name, p.options)
+    config = {"suite": suite, "suite_version": suite_version(suite), "town_versions": town_versions(specs),
+              "policies": [{"kind": p.kind, "name": p.name, **p.options} for p in pols], "deploy": deploy,
+              "seed": seed, "selection": {"conditions": conditions, "tasks": tasks, "weathers": weathers,
+                                          "episodes": episodes}, "shard": [k, n]}
+    prepare(out, config, resume)
+    console = Console(stderr=True)
+    total = len(specs) * len(pols)
+    columns = (TextColumn("bench {task.fields[suite]}"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("{task.fields[rate]:5.2f} episodes/s  success {task.fields[succ]:3.0f}%"),
+               TimeElapsedColumn())
+    import time
+
+    t0 = time.perf_counter()
+    with Progress(*columns, console=console) as bar:
+        task = bar.add_task("", total=total, suite=suite, rate=0.0, succ=0.0)
+        stats = {"n": 0, "ok": 0}
+
+        def report(r: dict) -> None:
+            stats["n"] += 1
+            stats["ok"] += int(r["success"])
+            bar.update(task, advance=1, rate=stats["n"] / (time.perf_counter() - t0),
+                       succ=100.0 * stats["ok"] / stats["n"])
+
+        try:
+            results = run_bench(specs, pols, out, config, workers=workers, resume=True, progress=report)
+        except KeyboardInterrupt:
+            console.print(f"interrupted: finished episodes are saved; continue with --resume --out {out}")
+            raise typer.Exit(130) from None
+    table = Table(title=f"{suite}: {len(results)} episodes in {out}")
+    for col in ("policy", "setting", "episodes", "success", "collision-free", "either", "km"):
+        table.add_column(col, justify="right")
+    for p in pols:
+        rows = [r for r in results if r["policy"] == p.name]
+        if not rows:
+            continue
+        steps = sum(r["steps"] for r in rows)
+        table.add_row(p.name, rows[0]["setting"], str(len(rows)),
+                      f"{100 * sum(r['success'] for r in rows) / len(rows):.0f}%",
+                      f"{100 * sum(not r['collided'] for r in rows) / len(rows):.0f}%",
+                      f"{100 * sum(r['either_steps'] for r in rows) / max(steps, 1):.1f}%",
+                      f"{sum(r['km'] for r in rows):.2f}")
+    console.print(table)
+    typer.echo(str(out))
+
+
 def raise_input(message: str) -> None:
     """Raise the one-line input error the entry point turns into exit code 2."""
     from brlcli.errors import BrlInputError

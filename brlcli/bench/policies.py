@@ -1,0 +1,72 @@
+"""Policies the bench can run; each is built inside the worker process from a plain description."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from brlcli.bench.runner import Observation
+from brlcli.bench.suites import EpisodeSpec
+from brlcli.errors import BrlInputError
+from brlcli.features import STATE_DIM, state_vector
+from brlcli.sim.gym_env import ACTIONS, FRAMES_PER_DECISION
+from brlcli.sim.vehicle import Control
+
+
+def model_training_input(model_path: Path) -> str:
+    """'gt' or 'estimated': the input a BRL model was trained on, from the config.json beside it (default gt)."""
+    cfg = Path(model_path).parent / "config.json"
+    if cfg.exists():
+        try:
+            return str(json.loads(cfg.read_text())["config"].get("input", "gt"))
+        except (json.JSONDecodeError, KeyError, TypeError):
+            raise BrlInputError(f"{cfg} is not a brl training config") from None
+    return "gt"
+
+
+def setting_name(train_input: str, deploy_input: str) -> str:
+    """TGDG, TGDE, TEDE or TEDG from the training and deployment inputs."""
+    code = {"gt": "G", "estimated": "E"}
+    return f"T{code[train_input]}D{code[deploy_input]}"
+
+
+class BRLPolicy:
+    """A trained Bayesian RL model deployed greedily on GT or estimated labels (decision every 7 frames)."""
+
+    frames_per_decision = FRAMES_PER_DECISION
+
+    def __init__(self, name: str, model: str, deploy: str = "gt", segnet: str | None = None) -> None:
+        from brlcli.agent import BayesianAgent
+
+        self.name = name
+        self.agent = BayesianAgent.load(model)
+        if self.agent.state_dim != STATE_DIM or self.agent.n_actions != len(ACTIONS):
+            raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and "
+                                f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)}")
+        if deploy not in ("gt", "estimated"):
+            raise BrlInputError(f"--deploy must be gt or estimated, not '{deploy}'")
+        self.setting = setting_name(model_training_input(Path(model)), deploy)
+        self.labeler = None
+        if deploy == "estimated":
+            from brlcli.seg.infer import load_labeler
+
+            self.labeler = load_labeler(segnet)
+        self._rng = np.random.default_rng(0)
+
+    def reset(self, spec: EpisodeSpec) -> None:
+        """Greedy policy: nothing to reset."""
+
+    def decide(self, obs: Observation) -> Control:
+        """Greedy action on the state of the (ground-truth or estimated) label image."""
+        labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
+        return ACTIONS[self.agent.act(state_vector(labels), self._rng, greedy=True)]
+
+
+def build_policy(kind: str, name: str, options: dict[str, Any]) -> Any:
+    """A policy from its kind and options."""
+    if kind == "brl":
+        return BRLPolicy(name, **options)
+    raise BrlInputError(f"unknown agent '{kind}'; available: brl")

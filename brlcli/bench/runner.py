@@ -1,0 +1,297 @@
+"""`brl bench`: run a suite's episodes for one or more policies; one JSON line per finished episode.
+
+Results directory:
+    bench.json        suite, its version, town versions, policies, deploy input, seed, selection, brl version, commit
+    results.jsonl     one line per finished episode, appended and flushed as it finishes (resume skips these)
+    frames/<policy>/<episode id>.npz   per-frame measurements and controls of the episode (compressed)
+Every episode's outcome depends only on its identifier, the policy and the bench seed, so results do not
+depend on the number of workers, the shard or the order in which episodes ran.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import zipfile
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from brlcli.bench.metrics import FOOTPRINT_THRESHOLD, episode_infractions, km_driven
+from brlcli.bench.suites import GOAL_DISTANCE_M, SUITE_VERSION, EpisodeSpec
+from brlcli.errors import BrlInputError
+from brlcli.provenance import atomic_write_json, provenance
+from brlcli.sim.town import load_town
+from brlcli.sim.vehicle import Control
+from brlcli.sim.world import FRAME_DT_S, World
+
+LOG_FIELDS = ("game_time_s", "x", "y", "yaw_deg", "forward_speed_kmh", "collision_vehicles",
+              "collision_pedestrians", "collision_other", "intersection_offroad", "intersection_otherlane")
+
+
+@dataclass
+class Observation:
+    """What a policy sees at a decision: camera images, measurements and the route command."""
+
+    rgb: np.ndarray
+    labels: np.ndarray
+    measurements: Any
+    command: int
+
+
+class Policy(Protocol):
+    """A driving policy the bench can run (BRL models, baselines)."""
+
+    name: str
+    setting: str
+    frames_per_decision: int
+
+    def reset(self, spec: EpisodeSpec) -> None:
+        """Start of an episode."""
+
+    def decide(self, obs: Observation) -> Control:
+        """Control to hold until the next decision."""
+
+
+@dataclass
+class PolicySpec:
+    """How to build a policy in a worker process (policies are rebuilt there, never pickled)."""
+
+    kind: str
+    name: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def build(self) -> Policy:
+        """Instantiate the policy."""
+        from brlcli.bench.policies import build_policy
+
+        return build_policy(self.kind, self.name, self.options)
+
+
+def _npz_compressed(arrays: dict[str, np.ndarray]) -> bytes:
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for key, value in arrays.items():
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.asarray(value), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            zf.writestr(info, member.getvalue())
+    return buf.getvalue()
+
+
+def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int) -> tuple[dict, dict]:
+    """Drive one episode; returns the result record and the per-frame log arrays."""
+    from brlcli.bench.suites import GOAL_DISTANCE_M as _goal
+
+    world.set_weather(spec.weather)
+    route = world.network.route(spec.start, spec.goal)
+    frame = world.reset(spec.start, seed=spec.seed(bench_seed))
+    policy.reset(spec)
+    n_max = math.ceil(spec.timeout_s / FRAME_DT_S)
+    log = {k: np.zeros(n_max + 1) for k in LOG_FIELDS}
+    controls = np.zeros((n_max + 1, 3))
+    for k in LOG_FIELDS:
+        log[k][0] = getattr(frame.measurements, k)
+    control, success, n = Control(), False, 0
+    gx, gy = spec.goal[0], spec.goal[1]
+    for i in range(n_max):
+        m = frame.measurements
+        if i % policy.frames_per_decision == 0:
+            rgb, labels = (frame.rgb, frame.labels) if frame.labels is not None else world.render()[:2]
+            s, _ = route.project(m.x, m.y)
+            control = policy.decide(Observation(rgb, labels, m, int(route.command_at(s))))
+        frame = world.step(control, render=False)
+        n = i + 1
+        for k in LOG_FIELDS:
+            log[k][n] = getattr(frame.measurements, k)
+        controls[n] = (control.steer, control.throttle, control.brake)
+        if math.hypot(frame.measurements.x - gx, frame.measurements.y - gy) <= _goal:
+            success = True
+            break
+    log = {k: v[: n + 1] for k, v in log.items()}
+    log["control"] = controls[: n + 1]
+    traffic = spec.vehicles + spec.pedestrians > 0
+    infractions = episode_infractions(log, with_collisions=traffic)
+    collisions = log["collision_vehicles"] + log["collision_pedestrians"] + log["collision_other"]
+    off = log["intersection_offroad"][1:] > FOOTPRINT_THRESHOLD
+    other = log["intersection_otherlane"][1:] > FOOTPRINT_THRESHOLD
+    result = {
+        **{k: getattr(spec, k) for k in ("suite", "condition", "task", "town", "weather", "index")},
+        "id": spec.id, "policy": policy.name, "setting": policy.setting, "seed": spec.seed(bench_seed),
+        "success": success, "time_s": round(n * FRAME_DT_S, 3), "timeout_s": spec.timeout_s,
+        "route_length_m": spec.route_length_m, "km": km_driven(log["x"], log["y"]),
+        "infractions": infractions, "collided": bool(collisions[-1] > 0),
+        "steps": int(n), "offroad_steps": int(off.sum()), "otherlane_steps": int(other.sum()),
+        "either_steps": int((off | other).sum()),
+        "final_distance_m": math.hypot(log["x"][-1] - gx, log["y"][-1] - gy),
+    }
+    return result, log
+
+
+class _Worker:
+    """Per-process cache: one world per (town, traffic) and one policy per policy spec."""
+
+    def __init__(self, policies: list[PolicySpec], bench_seed: int, frames_dir: str) -> None:
+        self.policy_specs = policies
+        self.policies: dict[int, Policy] = {}
+        self.worlds: dict[tuple, World] = {}
+        self.seed = bench_seed
+        self.frames_dir = Path(frames_dir)
+
+    def run(self, item: tuple[int, dict]) -> dict:
+        p_idx, spec_dict = item
+        spec = EpisodeSpec(**{**spec_dict, "start": tuple(spec_dict["start"]), "goal": tuple(spec_dict["goal"])})
+        if p_idx not in self.policies:
+            self.policies[p_idx] = self.policy_specs[p_idx].build()
+        key = (spec.town, spec.vehicles, spec.pedestrians)
+        if key not in self.worlds:
+            self.worlds[key] = World(spec.town, vehicles=spec.vehicles, pedestrians=spec.pedestrians, seed=0)
+        result, log = run_episode(self.worlds[key], spec, self.policies[p_idx], self.seed)
+        path = self.frames_dir / _safe(result["policy"]) / f"{_safe(spec.id)}.npz"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        from brlcli.provenance import atomic_write_bytes
+
+        atomic_write_bytes(path, _npz_compressed(log))
+        result["frames_file"] = str(path.relative_to(self.frames_dir.parent))
+        return result
+
+
+_WORKER: _Worker | None = None
+
+
+def _init_worker(policies: list[PolicySpec], seed: int, frames_dir: str) -> None:
+    global _WORKER
+    _WORKER = _Worker(policies, seed, frames_dir)
+
+
+def _run_item(item: tuple[int, dict]) -> dict:
+    assert _WORKER is not None
+    return _WORKER.run(item)
+
+
+def _safe(text: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in text)
+
+
+def read_results(out: Path) -> list[dict]:
+    """Finished episodes of a results directory (a torn last line from a crash is ignored)."""
+    path = Path(out) / "results.jsonl"
+    if not path.exists():
+        return []
+    rows = []
+    for line in path.read_text().splitlines():
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:
+            continue
+    return rows
+
+
+def prepare(out: Path, config: dict[str, Any], resume: bool) -> set[tuple[str, str]]:
+    """Check or create a results directory; returns the (policy, episode id) pairs already finished."""
+    out = Path(out)
+    meta = out / "bench.json"
+    if meta.exists():
+        saved = json.loads(meta.read_text())["config"]
+        if not resume:
+            raise BrlInputError(f"{out} already holds bench results ({saved.get('suite')}); pass --resume or "
+                                "choose another --out")
+        if saved != config:
+            raise BrlInputError(f"{out} holds results of another configuration (suite {saved.get('suite')}); "
+                                "resume with the same options or choose another --out")
+    elif resume and out.exists() and any(out.iterdir()):
+        raise BrlInputError(f"{out} is not a bench results directory (no bench.json)")
+    out.mkdir(parents=True, exist_ok=True)
+    if not meta.exists():
+        atomic_write_json(meta, provenance(config))
+    return {(r["policy"], r["id"]) for r in read_results(out)}
+
+
+def run_bench(specs: list[EpisodeSpec], policies: list[PolicySpec], out: Path, config: dict[str, Any],
+              workers: int = 1, resume: bool = False,
+              progress: Callable[[dict], None] | None = None) -> list[dict]:
+    """Run every (policy, episode) not yet in `out`; returns all results of the directory."""
+    done = prepare(out, config, resume)
+    todo = [(i, s.as_dict()) for i, p in enumerate(policies) for s in specs if (p.name, s.id) not in done]
+    frames_dir = str(Path(out) / "frames")
+    with open(Path(out) / "results.jsonl", "a", encoding="utf-8") as fh:
+
+        def record(result: dict) -> None:
+            fh.write(json.dumps(result, sort_keys=True) + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+            if progress:
+                progress(result)
+
+        for result in _execute(todo, policies, config["seed"], frames_dir, workers):
+            record(result)
+    return read_results(out)
+
+
+def _execute(todo: list, policies: list[PolicySpec], seed: int, frames_dir: str, workers: int) -> Iterator[dict]:
+    if workers <= 1 or len(todo) <= 1:
+        _init_worker(policies, seed, frames_dir)
+        for item in todo:
+            yield _run_item(item)
+        return
+    import multiprocessing as mp
+
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(workers, initializer=_init_worker, initargs=(policies, seed, frames_dir)) as pool:
+        yield from pool.imap_unordered(_run_item, todo, chunksize=1)
+
+
+def town_versions(specs: list[EpisodeSpec]) -> dict[str, str]:
+    """Version of each town the episodes use (recorded so that reports refuse to mix town versions)."""
+    return {t: load_town(t).version for t in sorted({s.town for s in specs})}
+
+
+def suite_version(suite: str) -> int:
+    """Version of a suite's definition."""
+    return SUITE_VERSION[suite]
+
+
+__all__ = ["GOAL_DISTANCE_M", "Observation", "Policy", "PolicySpec", "read_results", "run_bench", "run_episode"]
+
+
+def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, str]]:
+    """(policy name, model path) pairs from --model FILE or --models DIR|GLOB (a model set such as seed_0..8)."""
+    import glob as globmod
+
+    found: list[tuple[str, str]] = []
+    if model:
+        p = Path(model)
+        if p.is_dir():
+            p = p / "model.npz"
+        if not p.is_file():
+            raise BrlInputError(f"model file {p} does not exist")
+        found.append((p.parent.name or p.stem, str(p)))
+    for item in models or []:
+        hits = sorted(globmod.glob(item)) if any(ch in item for ch in "*?[") else [item]
+        paths: list[Path] = []
+        for h in hits:
+            hp = Path(h)
+            if hp.is_file():
+                paths.append(hp)
+            elif (hp / "model.npz").is_file():
+                paths.append(hp / "model.npz")
+            elif hp.is_dir():
+                paths.extend(sorted(hp.glob("*/model.npz")))
+        if not paths:
+            raise BrlInputError(f"--models '{item}' holds no model.npz files")
+        for p in paths:
+            found.append((f"{p.parent.parent.name}/{p.parent.name}", str(p)))
+    if not found:
+        raise BrlInputError("give a policy: --model FILE or --models DIR")
+    names = [n for n, _ in found]
+    if len(set(names)) != len(names):
+        raise BrlInputError("two models have the same name; give them distinct directories")
+    return found

@@ -1,0 +1,168 @@
+"""Benchmark suites as lists of episode specifications: the paper's lane-keeping table and CoRL2017."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from brlcli.errors import BrlInputError
+from brlcli.sim.gym_env import route_timeout_s
+from brlcli.sim.roadnet import RoadNetwork
+from brlcli.sim.town import load_town
+from brlcli.sim.weather import TEST_WEATHERS, TRAIN_WEATHERS, get_weather
+
+SUITES = ("paper", "corl2017")
+SUITE_VERSION = {"paper": 1, "corl2017": 1}
+PAPER_TOWNS = ("town02", "town01")
+PAPER_WEATHERS = (1, 4, 14)
+CORL_TASKS = ("straight", "one_curve", "navigation", "navigation_dynamic")
+CORL_CONDITIONS = {
+    "training": ("town01", TRAIN_WEATHERS),
+    "new_weather": ("town01", TEST_WEATHERS),
+    "new_town": ("town02", TRAIN_WEATHERS),
+    "new_town_weather": ("town02", TEST_WEATHERS),
+}
+CORL_TRAFFIC = {"town01": (20, 50), "town02": (15, 50)}
+GOAL_DISTANCE_M = 2.0
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One benchmark episode: where it starts and ends, in which town, weather and traffic, with its time limit."""
+
+    suite: str
+    condition: str
+    task: str
+    town: str
+    weather: int
+    index: int
+    start: tuple[float, float, float]
+    goal: tuple[float, float, float]
+    route_length_m: float
+    timeout_s: float
+    vehicles: int = 0
+    pedestrians: int = 0
+
+    @property
+    def id(self) -> str:
+        """Stable identifier: suite/town/condition/task/weather/index."""
+        return f"{self.suite}/{self.town}/{self.condition}/{self.task}/w{self.weather:02d}/{self.index:02d}"
+
+    def seed(self, base: int) -> int:
+        """Per-episode seed derived from the identifier (independent of order, workers and shards)."""
+        digest = hashlib.sha256(f"{base}:{self.id}".encode()).digest()
+        return int.from_bytes(digest[:4], "little")
+
+    def as_dict(self) -> dict:
+        """JSON-ready form."""
+        return asdict(self)
+
+
+def _parse_list(text: str | None, allowed: tuple[str, ...], what: str) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    items = tuple(t.strip() for t in text.split(",") if t.strip())
+    for t in items:
+        if t not in allowed:
+            raise BrlInputError(f"unknown {what} '{t}'; choose from {', '.join(allowed)}")
+    return items
+
+
+def paper_suite(weathers: tuple[int, ...] | None = None, towns: tuple[str, ...] | None = None) -> list[EpisodeSpec]:
+    """The paper's lane-keeping test routes (straight, right and left curve) in both towns and three weathers."""
+    specs = []
+    for town_name in towns or PAPER_TOWNS:
+        town = load_town(town_name)
+        net = RoadNetwork(town)
+        condition = "training_town" if town_name == "town01" else "unseen_town"
+        for w in weathers or PAPER_WEATHERS:
+            for i, r in enumerate(town.lane_keeping_routes):
+                length = net.route(r.start, r.goal).length_m
+                specs.append(EpisodeSpec("paper", condition, r.kind, town.name, int(w), i, r.start, r.goal,
+                                         round(length, 3), route_timeout_s(length)))
+    return specs
+
+
+def corl_suite(conditions: tuple[str, ...] | None = None, tasks: tuple[str, ...] | None = None,
+               weathers: tuple[int, ...] | None = None) -> list[EpisodeSpec]:
+    """CoRL2017: 4 tasks x 25 pose pairs x the weathers of each condition; traffic only in the dynamic task."""
+    specs = []
+    cache: dict[str, tuple] = {}
+    for cond in conditions or tuple(CORL_CONDITIONS):
+        town_name, cond_weathers = CORL_CONDITIONS[cond]
+        if town_name not in cache:
+            t = load_town(town_name)
+            cache[town_name] = (t, RoadNetwork(t))
+        town, net = cache[town_name]
+        for task in tasks or CORL_TASKS:
+            poses = town.corl2017_poses["navigation" if task == "navigation_dynamic" else task]
+            traffic = CORL_TRAFFIC[town_name] if task == "navigation_dynamic" else (0, 0)
+            for w in cond_weathers:
+                if weathers is not None and w not in weathers:
+                    continue
+                for i, (a, b) in enumerate(poses):
+                    start = tuple(float(v) for v in town.spawn_poses[a])
+                    goal = tuple(float(v) for v in town.spawn_poses[b])
+                    length = net.route(start, goal).length_m
+                    specs.append(EpisodeSpec("corl2017", cond, task, town.name, int(w), i, start, goal,  # type: ignore[arg-type]
+                                             round(length, 3), route_timeout_s(length), *traffic))
+    return specs
+
+
+def build_suite(suite: str, conditions: str | None = None, tasks: str | None = None,
+                weathers: str | None = None) -> list[EpisodeSpec]:
+    """Episode list of a suite, filtered by comma-separated conditions, tasks and weathers (ids or names)."""
+    if suite not in SUITES:
+        raise BrlInputError(f"unknown suite '{suite}'; choose from {', '.join(SUITES)}")
+    wl = None if weathers is None else tuple(get_weather(w.strip()).id for w in weathers.split(",") if w.strip())
+    if suite == "paper":
+        if conditions is not None or tasks is not None:
+            kinds = _parse_list(tasks, ("straight", "right_curve", "left_curve"), "task")
+            conds = _parse_list(conditions, ("unseen_town", "training_town"), "condition")
+            towns = None if conds is None else tuple("town01" if c == "training_town" else "town02" for c in conds)
+            specs = paper_suite(wl, towns)
+            return [s for s in specs if kinds is None or s.task in kinds]
+        return paper_suite(wl)
+    conds = _parse_list(conditions, tuple(CORL_CONDITIONS), "condition")
+    task_list = _parse_list(tasks, CORL_TASKS, "task")
+    specs = corl_suite(conds, task_list, wl)
+    if not specs:
+        raise BrlInputError("the chosen conditions, tasks and weathers select no episode")
+    return specs
+
+
+def subset(specs: list[EpisodeSpec], episodes: str | None) -> list[EpisodeSpec]:
+    """A deterministic subset: '--episodes 40' (count) or '--episodes 0.1' (fraction), spread over the list."""
+    if episodes is None:
+        return specs
+    try:
+        value = float(episodes)
+    except ValueError:
+        raise BrlInputError(f"--episodes '{episodes}' must be a count or a fraction like 0.1") from None
+    n = int(value) if value >= 1 else int(np.ceil(value * len(specs)))
+    if value <= 0 or (value >= 1 and value != int(value)):
+        raise BrlInputError(f"--episodes '{episodes}' must be a positive count or a fraction in (0, 1)")
+    n = min(n, len(specs))
+    ranked = sorted(specs, key=lambda s: hashlib.sha256(s.id.encode()).hexdigest())
+    keep = {s.id for s in ranked[:n]}
+    return [s for s in specs if s.id in keep]
+
+
+def parse_shard(text: str | None) -> tuple[int, int]:
+    """'K/N' (1 <= K <= N) -> (K, N); None -> (1, 1)."""
+    if text is None:
+        return 1, 1
+    try:
+        k, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise BrlInputError(f"--shard '{text}' must look like K/N, e.g. 2/8") from None
+    if not 1 <= k <= n:
+        raise BrlInputError(f"--shard '{text}' needs 1 <= K <= N")
+    return k, n
+
+
+def shard(specs: list[EpisodeSpec], k: int, n: int) -> list[EpisodeSpec]:
+    """The K-th of N deterministic slices (by position in the suite list)."""
+    return [s for i, s in enumerate(specs) if i % n == k - 1]
