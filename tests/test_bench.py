@@ -1,0 +1,121 @@
+"""brl bench: suites, deterministic subsets and shards, resume, worker independence, bad input."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from brlcli.agent import BayesianAgent
+from brlcli.bench.runner import PolicySpec, read_results, run_bench
+from brlcli.bench.suites import build_suite, parse_shard, shard, subset
+from brlcli.errors import BrlInputError
+from brlcli.train import TrainConfig, train_run
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory) -> Path:
+    run = tmp_path_factory.mktemp("model") / "seed_0"
+    train_run(TrainConfig(steps=200, seed=0, evaluate=False), run)
+    return run / "model.npz"
+
+
+def test_suite_sizes_follow_the_definitions() -> None:
+    corl = build_suite("corl2017")
+    assert len(corl) == 4 * 25 * 6 * 2  # tasks x poses x weathers (4 train + 2 test) x towns
+    dynamic = [s for s in corl if s.task == "navigation_dynamic"]
+    assert all((s.vehicles, s.pedestrians) == ((20, 50) if s.town == "town01" else (15, 50)) for s in dynamic)
+    assert all(s.vehicles == 0 for s in corl if s.task != "navigation_dynamic")
+    assert all(s.timeout_s == pytest.approx(s.route_length_m / 1000 / 10 * 3600 + 10, abs=1e-3) for s in corl)
+    new_town = build_suite("corl2017", conditions="new_town_weather")
+    assert {s.town for s in new_town} == {"town02"} and {s.weather for s in new_town} == {4, 14}
+    paper = build_suite("paper")
+    assert {s.town for s in paper} == {"town01", "town02"} and {s.weather for s in paper} == {1, 4, 14}
+    assert len({s.id for s in corl}) == len(corl)
+
+
+def test_subsets_and_shards_are_deterministic_partitions() -> None:
+    specs = build_suite("corl2017", tasks="straight")
+    a, b = subset(specs, "30"), subset(specs, "30")
+    assert [s.id for s in a] == [s.id for s in b] and len(a) == 30
+    assert len(subset(specs, "0.1")) == 30
+    parts = [shard(a, k, 4) for k in range(1, 5)]
+    ids = sorted(s.id for p in parts for s in p)
+    assert ids == sorted(s.id for s in a)
+    for bad in ("3/2", "0/2", "x", "1/0"):
+        with pytest.raises(BrlInputError):
+            parse_shard(bad)
+    for bad in ("0", "-1", "1.5", "abc"):
+        with pytest.raises(BrlInputError):
+            subset(specs, bad)
+
+
+def _key(rows: list[dict]) -> list[dict]:
+    return sorted(rows, key=lambda r: (r["policy"], r["id"]))
+
+
+def test_sharded_and_resumed_runs_equal_one_run(tmp_path: Path, model: Path) -> None:
+    specs = subset(build_suite("paper"), "6")
+    pol = [PolicySpec("brl", "m", {"model": str(model)})]
+    config = {"suite": "paper", "seed": 0}
+    full = _key(run_bench(specs, pol, tmp_path / "full", config))
+    assert len(full) == 6
+
+    class Stop(Exception):
+        pass
+
+    seen = []
+
+    def stop_after_two(result: dict) -> None:
+        seen.append(result)
+        if len(seen) == 2:
+            raise Stop
+
+    with pytest.raises(Stop):
+        run_bench(shard(specs, 1, 2), pol, tmp_path / "s1", config, progress=stop_after_two)
+    assert len(read_results(tmp_path / "s1")) == 2
+    with pytest.raises(BrlInputError):
+        run_bench(shard(specs, 1, 2), pol, tmp_path / "s1", config)  # needs resume
+    run_bench(shard(specs, 1, 2), pol, tmp_path / "s1", config, resume=True)
+    run_bench(shard(specs, 2, 2), pol, tmp_path / "s2", config, workers=2)
+    merged = _key(read_results(tmp_path / "s1") + read_results(tmp_path / "s2"))
+    assert merged == full
+    for r in full:
+        a = np.load(tmp_path / "full" / r["frames_file"], allow_pickle=False)
+        b_dir = "s1" if (tmp_path / "s1" / r["frames_file"]).exists() else "s2"
+        b = np.load(tmp_path / b_dir / r["frames_file"], allow_pickle=False)
+        np.testing.assert_array_equal(a["x"], b["x"])
+        assert len(a["x"]) == r["steps"] + 1
+
+
+def _brl(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "brlcli.cli", "bench", *args], capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_bench_cli_runs_and_rejects_bad_input(tmp_path: Path, model: Path) -> None:
+    r = _brl("--model", str(model), "--episodes", "2", "--out", str(tmp_path / "ok"))
+    assert r.returncode == 0, r.stderr
+    assert len(read_results(tmp_path / "ok")) == 2
+    wrong_state = tmp_path / "small" / "model.npz"
+    wrong_state.parent.mkdir()
+    BayesianAgent(state_dim=10, n_actions=4).save(wrong_state)
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a model")
+    cases = [
+        ["--suite", "corl2018", "--model", str(model)],
+        ["--suite", "corl2017", "--tasks", "parking", "--model", str(model)],
+        ["--suite", "corl2017", "--conditions", "night", "--model", str(model)],
+        ["--weathers", "Blizzard", "--model", str(model)],
+        ["--model", str(junk)],
+        ["--model", str(wrong_state)],
+        ["--model", str(model), "--shard", "3/2"],
+        ["--suite", "corl2017", "--model", str(model), "--episodes", "1", "--out", str(tmp_path / "ok")],
+    ]
+    for args in cases:
+        out = [] if "--out" in args else ["--out", str(tmp_path / "bad")]
+        r = _brl(*args, *out)
+        assert r.returncode == 2, (args, r.stderr)
+        assert r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr, (args, r.stderr)
+    assert not (tmp_path / "bad").exists()
