@@ -279,6 +279,44 @@ def bench(
     typer.echo(str(out))
 
 
+@app.command()
+def report(
+    results: Annotated[list[Path] | None, typer.Argument(help="`brl bench` results directories (shards, settings, "
+                                                              "agents) to merge.")] = None,
+    runs: Annotated[list[Path] | None, typer.Option("--runs", help="Training runs for the convergence plots: a run "
+                                                                   "directory or a directory of seed_N/ runs "
+                                                                   "(repeatable).")] = None,
+    out: Annotated[Path, typer.Option("--out", help="Report directory.")] = Path("runs/report"),
+    formats: Annotated[str, typer.Option("--format", help="Comma-separated outputs: md, tex, csv, html.")]
+    = "md,tex,csv,html",
+) -> None:
+    """Tables (the paper's test table, CoRL2017), Beta posteriors and plots beside the published figures."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from brlcli.report import build_report
+
+    console = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
+    with console.status("building the report"):
+        rep = build_report(results or [], runs or [], out, formats)
+    table = Table(title=f"brl report: {rep['episodes']} episodes -> {out}")
+    for col in ("suite", "setting", "agent", "episodes", "success", "collision-free", "either", "score", "km"):
+        table.add_column(col, justify="left" if col in ("suite", "setting", "agent") else "right")
+
+    def cell(row: dict, key: str, fmt: str) -> str:
+        value = row.get(key)
+        return "–" if value is None or value != value else format(value, fmt)
+
+    for row in rep["summary"]:
+        table.add_row(row["suite"], row["setting"], row["agent"], str(row["episodes"]),
+                      cell(row, "success", ".1%"), cell(row, "collision_free", ".1%"), cell(row, "either", ".1%"),
+                      cell(row, "score", ".2f"), cell(row, "km", ".2f"))
+    console.print(table)
+    for note in rep["notes"]:
+        console.print(f"note: {note}")
+    typer.echo(str(Path(out) / ("report.md" if "report.md" in rep["files"] else "report.json")))
+
+
 def raise_input(message: str) -> None:
     """Raise the one-line input error the entry point turns into exit code 2."""
     from brlcli.errors import BrlInputError

@@ -1,0 +1,178 @@
+"""The report's figures as PNG bytes (matplotlib's Agg canvas, fixed sizes and dpi, no pyplot state).
+
+- Beta posterior PDFs of the success and the collision-free rate per setting (best model; pooled over the set),
+- the histogram of per-step other-lane (left, negative) and off-road (right, positive) footprint shares,
+- reward and TD-error convergence over training steps (mean and spread over seeds, best and worst run marked).
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from brlcli.bench.metrics import FOOTPRINT_THRESHOLD, beta_posterior
+from brlcli.report.load import TrainingRun
+from brlcli.report.tables import Posterior, RunMarks
+
+DPI = 100
+"""Dots per inch of every PNG."""
+WIDTH_IN = 10.0
+"""Width of every figure, inches."""
+SMOOTHING_STEPS = 200
+"""Window of the moving average of the learning curves, learning steps."""
+
+SETTING_COLORS = {"TGDG": "tab:blue", "TGDE": "tab:orange", "TEDE": "tab:green", "TEDG": "tab:red"}
+OTHER_COLORS = ("tab:purple", "tab:brown", "tab:pink", "tab:gray", "tab:olive", "tab:cyan")
+INPUT_COLORS = {"gt": ("tab:blue", "navy", "tab:orange"), "estimated": ("tab:green", "darkgreen", "tab:red")}
+"""Per training input: mean color, best-run color, worst-run color."""
+
+
+def color_of(setting: str, order: Sequence[str]) -> str:
+    """A fixed color per paper setting; other settings in turn."""
+    if setting in SETTING_COLORS:
+        return SETTING_COLORS[setting]
+    others = [s for s in order if s not in SETTING_COLORS]
+    return OTHER_COLORS[others.index(setting) % len(OTHER_COLORS)] if setting in others else "black"
+
+
+def _png(fig: Figure) -> bytes:
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None})
+    return buf.getvalue()
+
+
+def beta_figure(posts: Sequence[Posterior], rate: str, order: Sequence[str]) -> bytes:
+    """PDFs of one rate's posteriors: best model per setting (left), pooled over the model set (right)."""
+    fig = Figure(figsize=(WIDTH_IN, 4.6), dpi=DPI, layout="constrained")
+    axes = fig.subplots(1, 2, sharey=False)
+    x = np.linspace(0.0005, 0.9995, 2000)
+    inner = (x > 0.01) & (x < 0.99)
+    panels = (("best", "policy"), ("pooled",))
+    titles = ("Best model per setting (and baselines)", "Pooled over each setting's model set")
+    for ax, scopes, title in zip(axes, panels, titles, strict=True):
+        top = 0.0
+        shown = [p for p in posts if p.rate == rate and p.scope in scopes]
+        for p in shown:
+            pdf = beta_posterior(p.successes, p.failures).pdf(x)
+            mean = (p.successes + 0.5) / (p.successes + p.failures + 1.0)
+            label = f"{p.setting}: {p.label} ({p.successes}/{p.successes + p.failures}, mean {mean:.2f})"
+            ax.plot(x, pdf, color=color_of(p.setting, order), lw=2, ls="-" if p.scope != "policy" else "--",
+                    label=label)
+            top = max(top, float(np.max(pdf[inner])))
+        ax.set_xlim(0.0, 1.0)
+        ax.set_ylim(0.0, top * 1.1 if top > 0 else 1.0)
+        if any(p.successes == 0 or p.failures == 0 for p in shown):
+            ax.text(0.02, 0.06, "with 0 failures (or 0 successes) the density\n"
+                    "rises without bound at 1 (or 0): clipped",
+                    ha="left", va="bottom", fontsize=8, color="dimgray", transform=ax.transAxes)
+        ax.set_xlabel(f"{rate} rate (share of episodes)")
+        ax.set_ylabel("posterior probability density")
+        ax.set_title(title, fontsize=11)
+        ax.grid(alpha=0.3)
+        if shown:
+            ax.legend(fontsize=8, loc="upper left")
+        else:
+            ax.text(0.5, 0.5, "no results", ha="center", va="center", transform=ax.transAxes)
+    fig.suptitle(f"Beta posterior of the {rate} rate (Jeffreys prior Beta(0.5, 0.5))", fontsize=13)
+    return _png(fig)
+
+
+@dataclass(frozen=True)
+class LaneShares:
+    """Per-step footprint shares of one setting's episodes (from the frames files)."""
+
+    setting: str
+    offroad: np.ndarray
+    otherlane: np.ndarray
+    episodes: int
+    missing_frames: int
+
+
+def lane_histogram_figure(groups: Sequence[LaneShares], order: Sequence[str]) -> bytes:
+    """Histogram of the per-step other-lane share (left, as negative values) and off-road share (right)."""
+    n = max(1, len(groups))
+    fig = Figure(figsize=(WIDTH_IN, 1.0 + 2.3 * n), dpi=DPI, layout="constrained")
+    axes = np.atleast_1d(fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0])
+    bins = np.linspace(-1.0, 1.0, 41)
+    for ax, g in zip(axes, groups, strict=False):
+        steps = max(1, g.offroad.size)
+        other = g.otherlane[g.otherlane > 0]
+        off = g.offroad[g.offroad > 0]
+        weight = 100.0 / steps
+        ax.hist(-other, bins=bins[bins <= 0], weights=np.full(other.size, weight), color="tab:orange",
+                edgecolor="black", lw=0.3, label="in the other lane (share < 0)")
+        ax.hist(off, bins=bins[bins >= 0], weights=np.full(off.size, weight), color="tab:red", edgecolor="black",
+                lw=0.3, label="off road (share > 0)")
+        for edge in (-FOOTPRINT_THRESHOLD, FOOTPRINT_THRESHOLD):
+            ax.axvline(edge, color="black", ls="--", lw=1,
+                       label=f"{100 * FOOTPRINT_THRESHOLD:.0f} % threshold" if edge > 0 else None)
+        ax.axvline(0.0, color="gray", lw=0.8)
+        in_lane = float(np.mean((g.offroad <= 0) & (g.otherlane <= 0))) * 100.0 if g.offroad.size else 0.0
+        ax.set_yscale("log")
+        ax.set_ylim(0.01, 100.0)
+        ax.set_ylabel("share of steps [%]")
+        ax.set_title(f"{g.setting}: {g.episodes} episodes, {g.offroad.size} steps; "
+                     f"{in_lane:.1f} % of steps fully in the own lane (not shown)", fontsize=10,
+                     color=color_of(g.setting, order))
+        ax.grid(alpha=0.3, which="major")
+        if ax is axes[0]:
+            ax.legend(fontsize=8, loc="upper center", ncols=3)
+    if not groups:
+        axes[0].text(0.5, 0.5, "no frames files", ha="center", va="center", transform=axes[0].transAxes)
+    axes[-1].set_xlim(-1.0, 1.0)
+    axes[-1].set_xlabel("share of the car's footprint per step: in the other lane (left, negative) | off road "
+                        "(right, positive)")
+    fig.suptitle("Per-step lane position: other lane (left) and off road (right)", fontsize=13)
+    return _png(fig)
+
+
+def _moving_average(values: np.ndarray, window: int) -> np.ndarray:
+    window = max(1, min(window, values.size))
+    c = np.cumsum(np.insert(values, 0, 0.0))
+    return (c[window:] - c[:-window]) / window
+
+
+def convergence_figure(runs: Sequence[TrainingRun], marks: RunMarks) -> bytes:
+    """Reward (top) and TD error (bottom) over training steps: per training input the mean over seeds with a
+    ± 1 std band, the best and the worst run (final greedy evaluation) as thin lines."""
+    fig = Figure(figsize=(WIDTH_IN, 7.5), dpi=DPI, layout="constrained")
+    ax_r, ax_td = fig.subplots(2, 1, sharex=True)
+    for train_input in sorted({r.input for r in runs}):
+        group = [r for r in runs if r.input == train_input]
+        color, best_color, worst_color = INPUT_COLORS.get(train_input, ("tab:purple", "indigo", "tab:brown"))
+        tag = {"gt": "TG", "estimated": "TE"}.get(train_input, train_input)
+        length = min(r.step.size for r in group)
+        window = min(SMOOTHING_STEPS, length)
+        for ax, attr in ((ax_r, "reward"), (ax_td, "td_error")):
+            curves = np.stack([_moving_average(getattr(r, attr)[:length], window) for r in group])
+            steps = group[0].step[window - 1:length]
+            mean, std = curves.mean(axis=0), curves.std(axis=0)
+            ax.plot(steps, mean, color=color, lw=2, label=f"{tag} models: mean of {len(group)} runs")
+            ax.fill_between(steps, mean - std, mean + std, color=color, alpha=0.2, lw=0,
+                            label=f"{tag} models: ± 1 std over runs")
+            for mark, style, line_color in (("best", "--", best_color), ("worst", ":", worst_color)):
+                name = getattr(marks, mark).get(train_input)
+                run = next((r for r in group if r.name == name), None)
+                if run is None:
+                    continue
+                success = (run.evaluation or {}).get("success_rate", float("nan"))
+                ax.plot(steps, _moving_average(getattr(run, attr)[:length], window), color=line_color, lw=1.3, ls=style,
+                        label=f"{tag} {mark}: {run.name} (eval success {100 * success:.0f} %)")
+    ax_r.set_ylabel(f"reward (moving average, {SMOOTHING_STEPS} steps)")
+    ax_td.set_ylabel(f"TD error (moving average, {SMOOTHING_STEPS} steps)")
+    ax_td.set_xlabel("training step (learning steps)")
+    ax_r.set_title("Reward", fontsize=11)
+    ax_td.set_title("TD error", fontsize=11)
+    for ax in (ax_r, ax_td):
+        ax.grid(alpha=0.3)
+    handles, labels = ax_r.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncols=2, fontsize=9)
+    fig.suptitle("Convergence of the training runs", fontsize=13)
+    return _png(fig)

@@ -1,0 +1,389 @@
+"""`brl report`: metrics on hand-made episodes, merging and refusing results, determinism, the CLI's errors.
+
+Results directories are synthetic (bench.json + results.jsonl + tiny frames files written here): no simulator runs.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from brlcli.errors import BrlInputError
+from brlcli.report import build_report
+from brlcli.report.tables import model_stats
+
+TOWNS = {"town01": "3", "town02": "3"}
+TABLE_FORMATS = "csv,tex"
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Synthetic results
+
+
+def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def paper_episode(policy: str, setting: str, n: int, steps: int = 20, off: int = 0, other: int = 0, both: int = 0,
+                  success: bool = True, collided: bool = False, km: float = 0.1) -> dict:
+    """A paper-suite episode record: `off` steps only off road, `other` only in the other lane, `both` in both."""
+    town = ("town01", "town02")[n % 2]
+    condition = {"town01": "training_town", "town02": "unseen_town"}[town]
+    task = ("straight", "right_curve", "left_curve")[n % 3]
+    weather = (1, 4, 14)[(n // 3) % 3]
+    ep_id = f"paper/{town}/{condition}/{task}/w{weather:02d}/{n:02d}"
+    return {"suite": "paper", "condition": condition, "task": task, "town": town, "weather": weather, "index": n,
+            "id": ep_id, "policy": policy, "setting": setting, "seed": 1000 + n, "success": success,
+            "time_s": steps / 10, "timeout_s": 40.0, "route_length_m": 90.0, "km": km,
+            "infractions": {"offroad": 0, "otherlane": 0, "collision_other": 0, "collision_vehicles": 0,
+                            "collision_pedestrians": 0},
+            "collided": collided, "steps": steps, "offroad_steps": off + both, "otherlane_steps": other + both,
+            "either_steps": off + other + both, "final_distance_m": 1.0 if success else 30.0,
+            "frames_file": f"frames/{policy.replace('/', '_')}/{ep_id.replace('/', '_')}.npz"}
+
+
+def frames_of(ep: dict) -> dict[str, np.ndarray]:
+    """Per-frame arrays (steps + 1 frames) consistent with the episode's step counts."""
+    n = ep["steps"] + 1
+    off_only = ep["offroad_steps"] - (ep["offroad_steps"] + ep["otherlane_steps"] - ep["either_steps"])
+    both = ep["offroad_steps"] - off_only
+    other_only = ep["otherlane_steps"] - both
+    offroad, otherlane = np.zeros(n), np.zeros(n)
+    offroad[1:1 + off_only] = 0.5
+    otherlane[1 + off_only:1 + off_only + other_only] = 0.6
+    offroad[1 + off_only + other_only:1 + off_only + other_only + both] = 0.3
+    otherlane[1 + off_only + other_only:1 + off_only + other_only + both] = 0.3
+    otherlane[-1] = 0.1  # below the 20 % threshold: in the histogram, not in the counts
+    x = np.linspace(0.0, ep["km"] * 1000.0, n)
+    return {"intersection_offroad": offroad, "intersection_otherlane": otherlane, "x": x, "y": np.zeros(n)}
+
+
+def write_results(path: Path, episodes: list[dict], suite: str = "paper", suite_version: int = 1,
+                  towns: dict[str, str] | None = None, shard: tuple[int, int] = (1, 1)) -> Path:
+    """A results directory as `brl bench` writes it."""
+    path.mkdir(parents=True, exist_ok=True)
+    policies = sorted({e["policy"] for e in episodes})
+    config = {"suite": suite, "suite_version": suite_version, "town_versions": towns or dict(TOWNS),
+              "policies": [{"kind": "brl", "name": p, "model": f"runs/{p}/model.npz", "deploy": "gt",
+                            "segnet": None} for p in policies],
+              "deploy": "gt", "seed": 0, "selection": {}, "shard": list(shard)}
+    (path / "bench.json").write_text(json.dumps({"brl_version": "0.1.0", "git_commit": "test", "python": "3.11",
+                                                 "config": config}))
+    with open(path / "results.jsonl", "w") as fh:
+        for ep in episodes:
+            fh.write(json.dumps(ep, sort_keys=True) + "\n")
+            frames = path / ep["frames_file"]
+            frames.parent.mkdir(parents=True, exist_ok=True)
+            frames.write_bytes(_npz_bytes(frames_of(ep)))
+    return path
+
+
+def model_set(setting: str, models: int = 2, episodes: int = 6) -> list[dict]:
+    """Episodes of a small model set with varied outcomes."""
+    out = []
+    for m in range(models):
+        for n in range(episodes):
+            out.append(paper_episode(f"set_{setting.lower()}/seed_{m}", setting, n, steps=20 + n, off=(n + m) % 3,
+                                     other=(2 * n + m) % 4, both=n % 2, success=(n + m) % 3 != 0,
+                                     collided=(n * (m + 1)) % 5 == 0, km=0.08 + 0.01 * n))
+    return out
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def table_bytes(out: Path) -> dict[str, bytes]:
+    """Every md, tex and csv file of a report."""
+    return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*"))
+            if p.suffix in (".md", ".tex", ".csv")}
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Metrics on hand-made episodes
+
+
+def test_score_and_either_on_hand_made_episodes(tmp_path: Path) -> None:
+    eps = [
+        paper_episode("m/a", "TGDG", 0, steps=10, off=2, success=True, collided=False, km=0.1),
+        paper_episode("m/a", "TGDG", 1, steps=10, other=3, success=False, collided=False, km=0.2),
+        # 20 steps: 2 only off road, 2 only in the other lane, 2 in both: Either counts those 2 once
+        paper_episode("m/a", "TGDG", 2, steps=20, off=2, other=2, both=2, success=True, collided=True, km=0.3),
+    ]
+    m = model_stats("TGDG", "m/a", eps)
+    # steps 40: off-road 2 + 4 = 6, other lane 3 + 4 = 7, either 2 + 3 + 6 = 11 (not 6 + 7)
+    assert (m.steps, m.offroad, m.otherlane, m.either) == (40, 6 / 40, 7 / 40, 11 / 40)
+    assert m.success == pytest.approx(2 / 3) and m.no_collision == pytest.approx(2 / 3)
+    assert m.score == pytest.approx(((1 - 11 / 40) + 2 / 3 + 2 / 3) / 3)
+    assert m.dist_m == pytest.approx(600.0)
+
+    out = tmp_path / "rep"
+    build_report([write_results(tmp_path / "r", eps)], out=out, formats=TABLE_FORMATS)
+    row = read_csv(out / "tables" / "paper_models.csv")[0]
+    assert row["Either [%]"] == "27.5000" and row["Offroad [%]"] == "15.0000" and row["Otherlane [%]"] == "17.5000"
+    assert float(row["Score"]) == pytest.approx(((1 - 0.275) + 2 / 3 + 2 / 3) / 3, abs=1e-6)
+    assert row["Dist [m]"] == "600.000" and row["Best"] == "best"
+
+
+def test_paper_checks_and_average_best_rows(tmp_path: Path) -> None:
+    # the two checks of benchmark.md section 1, through the table: Either 2.4 %, 100 %, 100 % -> 0.99
+    good = [paper_episode("m/good", "TGDG", n, steps=1000, off=24 if n == 0 else 0) for n in range(1)]
+    # Either 52.4 %, 41.7 %, 50 % -> 0.46 (12 episodes: 5 successes, 6 collisions; 524 of 1000 steps)
+    bad = [paper_episode("m/bad", "TGDG", n, steps=1000 if n == 0 else 0, off=524 if n == 0 else 0,
+                         success=n < 5, collided=n % 2 == 0) for n in range(12)]
+    out = tmp_path / "rep"
+    build_report([write_results(tmp_path / "r", good + bad)], out=out, formats=TABLE_FORMATS)
+    rows = {r["Policy"]: r for r in read_csv(out / "tables" / "paper_models.csv")}
+    assert round(float(rows["m/good"]["Score"]), 2) == 0.99 and rows["m/good"]["Best"] == "best"
+    assert round(float(rows["m/bad"]["Score"]), 2) == 0.46
+    table = read_csv(out / "tables" / "paper_test_table.csv")
+    avg = next(r for r in table if r["Setting"] == "TGDG" and r["Row"] == "average" and r["Source"] == "ours")
+    scores = np.array([float(rows["m/good"]["Score"]), float(rows["m/bad"]["Score"])])
+    assert float(avg["Score"]) == pytest.approx(scores.mean(), abs=1e-6)
+    assert float(avg["Score std"]) == pytest.approx(scores.std(), abs=1e-6)
+    best = next(r for r in table if r["Row"].startswith("best model: "))
+    assert best["Row"] == "best model: m/good"
+    published = [r for r in table if r["Source"] == "published"]
+    assert len(published) == 10  # every row of tab:ZGHSmall, RL and IL included
+    assert {"RL", "IL"} <= {r["Setting"] for r in published}
+
+
+def test_beta_posteriors_match_scipy(tmp_path: Path) -> None:
+    eps = model_set("TGDG", models=3, episodes=7)
+    out = tmp_path / "rep"
+    build_report([write_results(tmp_path / "r", eps)], out=out, formats=TABLE_FORMATS)
+    rows = read_csv(out / "tables" / "paper_posteriors.csv")
+    pooled = [r for r in rows if r["Scope"].startswith("pooled")]
+    assert {r["Rate"] for r in pooled} == {"success", "collision-free"}
+    n_ok = sum(e["success"] for e in eps)
+    assert next(r for r in pooled if r["Rate"] == "success")["Successes"] == str(n_ok)
+    assert {r["Scope"] for r in rows if r["Setting"] == "TEDE"} == {"missing: no results for this setting"}
+    for r in (r for r in rows if r["Successes"]):
+        s, f = int(r["Successes"]), int(r["Failures"])
+        ref = stats.beta(s + 0.5, f + 0.5)
+        assert float(r["Mean"]) == pytest.approx(ref.mean(), abs=1e-6)
+        assert float(r["95 % lo"]) == pytest.approx(ref.ppf(0.025), abs=1e-6)
+        assert float(r["95 % hi"]) == pytest.approx(ref.ppf(0.975), abs=1e-6)
+
+
+def test_corl_success_over_weathers_and_km_between_infractions(tmp_path: Path) -> None:
+    def ep(n: int, weather: int, success: bool, offroad: int, condition: str = "training") -> dict:
+        town = "town01" if condition in ("training", "new_weather") else "town02"
+        return {"suite": "corl2017", "condition": condition, "task": "straight", "town": town, "weather": weather,
+                "index": n, "id": f"corl2017/{town}/{condition}/straight/w{weather:02d}/{n:02d}", "policy": "seed_3",
+                "setting": "TGDG", "seed": n, "success": success, "km": 0.5, "steps": 100, "collided": False,
+                "either_steps": 10, "infractions": {"offroad": offroad, "otherlane": 0, "collision_other": 0,
+                                                    "collision_vehicles": 0, "collision_pedestrians": 0}}
+
+    eps = [ep(0, 1, True, 1), ep(1, 1, False, 0), ep(2, 3, True, 0), ep(3, 4, False, 2, "new_town")]
+    path = tmp_path / "corl"
+    path.mkdir()
+    (path / "bench.json").write_text(json.dumps({"config": {"suite": "corl2017", "suite_version": 1,
+                                                            "town_versions": TOWNS}}))
+    (path / "results.jsonl").write_text("".join(json.dumps(e) + "\n" for e in eps))
+    out = tmp_path / "rep"
+    build_report([path], out=out, formats="csv,md")
+    success = read_csv(out / "tables" / "corl_success.csv")
+    ours = next(r for r in success if r["Task"] == "Straight" and r["Source"] == "ours")
+    assert float(ours["Training"]) == pytest.approx(75.0)  # weather 1: 1/2, weather 3: 1/1 -> mean 0.75, not 2/3
+    assert float(ours["New town"]) == 0.0 and ours["New weather"] == ""
+    carla = next(r for r in success if r["Task"] == "Straight" and r["Agent"] == "MP")
+    assert (carla["Source"], carla["Training"]) == ("published", "98")
+    km = read_csv(out / "tables" / "corl_km_between_infractions.csv")
+    ours_km = {r["Infraction"]: r for r in km if r["Source"] == "ours"}
+    assert float(ours_km["Sidewalk (off-road)"]["Training"]) == pytest.approx(1.5)  # 1.5 km / 1 event
+    assert ours_km["Opposite lane"]["Training"] == ">1.500000"
+    assert float(ours_km["Sidewalk (off-road)"]["New town"]) == pytest.approx(0.25)
+    paper = next(r for r in km if r["Infraction"] == "Opposite lane" and r["Agent"] == "TGDE")
+    assert (paper["Source"], paper["New town"], paper["Training"]) == ("published", "4.10", "")
+    md = (out / "report.md").read_text()
+    assert "| Opposite lane | seed_3 (TGDG) | ours | > 1.50 |" in md
+    assert "75.0 (n=3)" in md
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Merging, missing settings, determinism
+
+
+def test_merged_shards_equal_the_unsharded_report(tmp_path: Path) -> None:
+    eps = model_set("TGDG") + model_set("TEDE", models=3, episodes=4)
+    whole = write_results(tmp_path / "whole", eps)
+    shard_a = write_results(tmp_path / "shard_a", eps[1::2], shard=(1, 2))
+    shard_b = write_results(tmp_path / "shard_b", eps[0::2], shard=(2, 2))
+    build_report([whole], out=tmp_path / "rep_whole", formats="md,tex,csv")
+    build_report([shard_b, shard_a], out=tmp_path / "rep_shards", formats="md,tex,csv")
+    # a shard given twice, and the whole set plus a shard: duplicates merge away
+    build_report([shard_a, whole, shard_a], out=tmp_path / "rep_dupes", formats="md,tex,csv")
+    ref = table_bytes(tmp_path / "rep_whole")
+    assert len(ref) == 1 + 2 * 3 and "report.md" in ref
+    assert table_bytes(tmp_path / "rep_shards") == ref
+    tables_only = {k: v for k, v in ref.items() if k.startswith("tables/")}
+    assert {k: v for k, v in table_bytes(tmp_path / "rep_dupes").items() if k.startswith("tables/")} == tables_only
+    dupes = json.loads((tmp_path / "rep_dupes" / "report.json").read_text())
+    assert dupes["duplicates_merged"] == len(eps) // 2 and dupes["episodes"] == len(eps)
+
+
+def test_missing_setting_is_reported(tmp_path: Path) -> None:
+    out = tmp_path / "rep"
+    build_report([write_results(tmp_path / "r", model_set("TGDG") + model_set("TEDG"))], out=out,
+                 formats="md,csv")
+    table = read_csv(out / "tables" / "paper_test_table.csv")
+    for setting in ("TGDE", "TEDE"):
+        ours = [r for r in table if r["Setting"] == setting and r["Source"] == "ours"]
+        assert [r["Row"] for r in ours] == ["missing: no results for this setting"]
+        assert len([r for r in table if r["Setting"] == setting and r["Source"] == "published"]) == 2
+    md = (out / "report.md").read_text()
+    assert "Setting TGDE is missing" in md and "Setting TEDE is missing" in md
+    assert "Setting TGDG is missing" not in md and "Setting TEDG is missing" not in md
+    assert "Missing settings (no results): TGDE, TEDE." in md
+
+
+def test_baselines_are_extra_rows(tmp_path: Path) -> None:
+    eps = model_set("TGDG") + [paper_episode("carla_il", "IL-baseline", n, off=1) for n in range(3)]
+    out = tmp_path / "rep"
+    build_report([write_results(tmp_path / "r", eps)], out=out, formats="csv")
+    rows = read_csv(out / "tables" / "paper_test_table.csv")
+    base = [r for r in rows if r["Setting"] == "IL-baseline"]
+    assert [(r["Row"], r["Source"], r["Episodes"]) for r in base] == [("carla_il", "ours", "3")]
+
+
+def test_deterministic_rerun_and_outputs(tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    for seed, success in ((0, 1.0), (1, 0.5)):
+        d = runs / f"seed_{seed}"
+        d.mkdir(parents=True)
+        rng = np.random.default_rng(seed)
+        lines = ["step,episode,reward,td_error"] + [f"{i},{i // 50},{-40 + i / 20 + rng.normal():.6f},"
+                                                    f"{-100 + rng.normal():.6f}" for i in range(1, 401)]
+        (d / "log.csv").write_text("\n".join(lines) + "\n")
+        (d / "config.json").write_text(json.dumps({"config": {"input": "gt", "seed": seed}}))
+        (d / "summary.json").write_text(json.dumps({"summary": {"eval": {
+            "success_rate": success, "either_share": 0.2, "collision_free_rate": 1.0}}}))
+    res = write_results(tmp_path / "r", model_set("TGDG") + model_set("TGDE"))
+    first = build_report([res], [runs], out=tmp_path / "a")
+    second = build_report([res], [runs], out=tmp_path / "b")
+    assert first["files"] == second["files"]
+    assert table_bytes(tmp_path / "a") == table_bytes(tmp_path / "b")
+    for name in ("beta_success", "beta_collision_free", "lane_histogram", "convergence"):
+        png = (tmp_path / "a" / "figures" / f"{name}.png").read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n"
+        width, height = struct.unpack(">II", png[16:24])
+        assert width == 1000 and height > 300  # fixed 10-inch width at 100 dpi
+    md = (tmp_path / "a" / "report.md").read_text()
+    assert "![Per-step lane position](figures/lane_histogram.png)" in md
+    html = (tmp_path / "a" / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == 4 and "<table>" in html
+    training = read_csv(tmp_path / "a" / "tables" / "training_runs.csv")
+    assert [(r["Run"], r["Mark"]) for r in training] == [("runs/seed_0", "best"), ("runs/seed_1", "worst")]
+    prov = json.loads((tmp_path / "a" / "report.json").read_text())
+    assert {"brl_version", "git_commit", "config", "inputs", "files"} <= set(prov)
+    assert prov["inputs"][0]["suite"] == "paper" and prov["config"]["runs"] == [str(runs)]
+    assert not list((tmp_path / "a").rglob("*.tmp"))
+    assert tb_has_booktabs(tmp_path / "a" / "tables" / "paper_test_table.tex")
+
+
+def tb_has_booktabs(path: Path) -> bool:
+    text = path.read_text()
+    return all(rule in text for rule in ("\\toprule", "\\midrule", "\\bottomrule")) and "\\%" in text
+
+
+def test_torn_last_line_is_ignored(tmp_path: Path) -> None:
+    res = write_results(tmp_path / "r", model_set("TGDG"))
+    with open(res / "results.jsonl", "a") as fh:
+        fh.write('{"suite": "paper", "condi')
+    rep = build_report([res], out=tmp_path / "rep", formats="csv")
+    assert rep["episodes"] == 12 and any("torn" in n for n in rep["notes"])
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Refusals: one line, nothing written
+
+
+def _bad_inputs(tmp_path: Path, case: str) -> list[Path]:
+    eps = model_set("TGDG")
+    if case == "mixed suite versions":
+        return [write_results(tmp_path / "v1", eps[:6]), write_results(tmp_path / "v2", eps[6:], suite_version=2)]
+    if case == "mixed town versions":
+        return [write_results(tmp_path / "t3", eps[:6]),
+                write_results(tmp_path / "t4", eps[6:], towns={"town01": "4", "town02": "3"})]
+    if case == "no results":
+        return []
+    res = write_results(tmp_path / "r", eps)
+    lines = (res / "results.jsonl").read_text().splitlines()
+    if case == "empty results file":
+        (res / "results.jsonl").write_text("")
+    elif case == "corrupt results file":
+        lines[3] = lines[3][:40]
+        (res / "results.jsonl").write_text("\n".join(lines) + "\n")
+    elif case == "no bench.json":
+        (res / "bench.json").unlink()
+    elif case == "no results.jsonl":
+        (res / "results.jsonl").unlink()
+    elif case == "conflicting duplicates":
+        other = json.loads(lines[0])
+        other["success"] = not other["success"]
+        return [res, write_results(tmp_path / "r2", [other])]
+    return [res]
+
+
+BAD_CASES = ("mixed suite versions", "mixed town versions", "no results", "empty results file",
+             "corrupt results file", "no bench.json", "no results.jsonl", "conflicting duplicates")
+
+
+@pytest.mark.parametrize("case", BAD_CASES)
+def test_bad_inputs_are_one_line_errors(tmp_path: Path, case: str) -> None:
+    dirs = _bad_inputs(tmp_path, case)
+    out = tmp_path / "rep"
+    with pytest.raises(BrlInputError) as err:
+        build_report(dirs, out=out)
+    assert "\n" not in str(err.value) and str(err.value)
+    assert not out.exists()
+
+
+def test_bad_runs_directory_is_refused(tmp_path: Path) -> None:
+    res = write_results(tmp_path / "r", model_set("TGDG"))
+    (tmp_path / "empty").mkdir()
+    for runs in ([tmp_path / "missing"], [tmp_path / "empty"]):
+        with pytest.raises(BrlInputError):
+            build_report([res], runs, out=tmp_path / "rep")
+    with pytest.raises(BrlInputError, match="unknown report format"):
+        build_report([res], out=tmp_path / "rep", formats="md,pdf")
+    assert not (tmp_path / "rep").exists()
+
+
+def _brl(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "brlcli.cli", *args], capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("case", ["mixed suite versions", "corrupt results file", "no results"])
+def test_cli_errors_exit_2_on_one_line(tmp_path: Path, case: str) -> None:
+    dirs = _bad_inputs(tmp_path, case)
+    out = tmp_path / "rep"
+    r = _brl("report", *map(str, dirs), "--out", str(out))
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.startswith("brl: error:") and r.stderr.strip().count("\n") == 0
+    assert "Traceback" not in r.stderr
+    assert not out.exists()
+
+
+def test_cli_writes_a_report(tmp_path: Path) -> None:
+    res = write_results(tmp_path / "r", model_set("TGDG"))
+    out = tmp_path / "rep"
+    r = _brl("report", str(res), "--out", str(out), "--format", "md,csv")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == str(out / "report.md")
+    assert "TGDG" in r.stderr and "missing" in r.stderr  # the terminal summary
+    assert (out / "report.md").is_file() and (out / "tables" / "paper_test_table.csv").is_file()
+    assert not (out / "report.html").exists() and not list(out.rglob("*.tex"))
