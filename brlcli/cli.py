@@ -317,6 +317,61 @@ def report(
     typer.echo(str(Path(out) / ("report.md" if "report.md" in rep["files"] else "report.json")))
 
 
+@app.command("train-seg")
+def train_seg(
+    data: Annotated[list[str], typer.Option(help="Training bags: bag directories, directories of bags, globs.")],
+    val: Annotated[list[str] | None, typer.Option(help="A validation set (repeatable; the first picks the best "
+                                                       "checkpoint). None: hold out episodes of --data.")] = None,
+    val_fraction: Annotated[float, typer.Option(help="Share of --data episodes held out when no --val.")] = 0.1,
+    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 14,
+    batch_size: Annotated[int, typer.Option(help="Batch size (>= 4).")] = 16,
+    seed: Annotated[int, typer.Option(help="Seed of initialisation, order and augmentation.")] = 0,
+    workers: Annotated[int, typer.Option(help="CPU threads for torch.")] = 2,
+    out: Annotated[Path, typer.Option("--out", help="Output directory (segnet.pt = best, last.pt, metrics.jsonl).")]
+    = Path("runs/segnet"),
+    resume: Annotated[bool, typer.Option("--resume", help="Continue from the last finished epoch in --out.")] = False,
+) -> None:
+    """Train the EncNet-style segmentation net on frames recorded by brl collect."""
+    import json
+
+    from rich.console import Console
+
+    from brlcli.provenance import atomic_write_json, provenance
+    from brlcli.segdata import load_frames, resolve_data
+    from brlcli.segnet.train import SegTrainConfig, train_segnet
+
+    cfg = SegTrainConfig(epochs=epochs, batch_size=batch_size, seed=seed, threads=workers)
+    train_bags, val_bags = resolve_data(data, val, val_fraction, seed)
+    record = provenance({**cfg.to_dict(), "data": [str(b) for b in train_bags],
+                         "val": {k: [str(b) for b in v] for k, v in val_bags.items()}})
+    cfg_path = out / "config.json"
+    if cfg_path.exists():
+        if not resume:
+            raise_input(f"{out} already holds a segmentation run; pass --resume or choose another --out")
+        if json.loads(cfg_path.read_text())["config"] != record["config"]:
+            raise_input(f"{out} holds a run with other options or data; resume with the same options")
+    console = Console(stderr=True)
+    with console.status("reading bags"):
+        train_frames = load_frames(train_bags)
+        val_frames = {k: load_frames(v) for k, v in val_bags.items()}
+    console.print(f"{len(train_frames)} training frames; validation: "
+                  + ", ".join(f"{k} {len(v)}" for k, v in val_frames.items()))
+    atomic_write_json(cfg_path, record)
+
+    def report(r: dict) -> None:
+        vals = "  ".join(f"{k}: mIoU cat {r[k]['miou_categories']:.3f} cls {r[k]['miou_classes']:.3f}"
+                         for k in val_frames)
+        console.print(f"epoch {r['epoch']:3d}/{epochs}  loss {r['loss']:.4f}  {vals}  ({r['wall_s']:.0f} s)")
+
+    try:
+        result = train_segnet(train_frames, val_frames, cfg, out, progress=report, resume=resume)
+    except KeyboardInterrupt:
+        console.print(f"interrupted: finished epochs are saved; continue with --resume --out {out}")
+        raise typer.Exit(130) from None
+    console.print(f"best mean category IoU on {next(iter(val_frames))}: {result['best']:.3f}")
+    typer.echo(str(out / "segnet.pt"))
+
+
 def raise_input(message: str) -> None:
     """Raise the one-line input error the entry point turns into exit code 2."""
     from brlcli.errors import BrlInputError

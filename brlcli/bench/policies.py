@@ -51,7 +51,7 @@ class BRLPolicy:
         self.setting = setting_name(model_training_input(Path(model)), deploy)
         self.labeler = None
         if deploy == "estimated":
-            from brlcli.seg.infer import load_labeler
+            from brlcli.segnet.infer import load_labeler
 
             self.labeler = load_labeler(segnet)
         self._rng = np.random.default_rng(0)
