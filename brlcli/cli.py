@@ -74,6 +74,8 @@ def train(
     variant: Annotated[str, typer.Option(help="paper, or reference-code (the authors' code's choices).")] = "paper",
     target_speed_kmh: Annotated[float, typer.Option(help="Reward's target speed v_t, km/h.")] = 20.0,
     evaluate: Annotated[bool, typer.Option(help="Greedy evaluation on the lane-keeping routes at the end.")] = True,
+    segnet: Annotated[str | None, typer.Option(help="Segmentation net for --input estimated (default: shipped).")]
+    = None,
 ) -> None:
     """Online Bayesian RL training of the driving agent (paper Sec. III-IV)."""
     from rich.console import Console
@@ -85,8 +87,13 @@ def train(
     if workers < 1:
         raise_input("--workers must be at least 1")
     seed_list = parse_seeds(seeds) if seeds is not None else [seed]
+    if input == "estimated" and segnet is None:
+        from brlcli.models import default_segnet_path
+
+        segnet = str(default_segnet_path())
     cfg = TrainConfig(town=town, weather=get_weather(weather).id, input=input, steps=steps, seed=seed_list[0],
-                      variant=variant, target_speed_kmh=target_speed_kmh, evaluate=evaluate)
+                      variant=variant, target_speed_kmh=target_speed_kmh, evaluate=evaluate,
+                      segnet=segnet if input == "estimated" else None)
     from brlcli.sim.town import load_town
 
     load_town(town)

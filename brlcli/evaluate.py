@@ -35,10 +35,13 @@ def run_episode(env: DrivingEnv, policy: Callable[[np.ndarray], int], route: str
             "offroad": offroad, "otherlane": otherlane}
 
 
-def evaluate_lane_keeping(agent: Any, town: str = "town01", weather: int | str = 1,
-                          seed: int = 0) -> dict[str, Any]:
-    """Greedy policy of `agent` (anything with `act(state, rng, greedy=True)`) on every lane-keeping route."""
-    env = DrivingEnv(town=town, weather=weather, routes="lane_keeping")
+def evaluate_lane_keeping(agent: Any, town: str = "town01", weather: int | str = 1, seed: int = 0,
+                          labeler: Callable[[np.ndarray], np.ndarray] | None = None) -> dict[str, Any]:
+    """Greedy policy of `agent` (anything with `act(state, rng, greedy=True)`) on every lane-keeping route.
+
+    With a `labeler` (the segmentation net) the agent sees estimated labels, as in deployment on estimated input.
+    """
+    env = DrivingEnv(town=town, weather=weather, routes="lane_keeping", labeler=labeler)
     rng = np.random.default_rng(seed)
 
     def policy(obs: np.ndarray) -> int:

@@ -49,6 +49,7 @@ class TrainConfig:
     variant: str = "paper"
     target_speed_kmh: float = 20.0
     evaluate: bool = True
+    segnet: str | None = None  # the segmentation net for input "estimated" (None: the shipped one)
     params: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -104,15 +105,20 @@ def _episode_seed(seed: int, episode: int) -> int:
 
 def check_inputs(cfg: TrainConfig) -> None:
     """Fail early, with one line, on inputs a run could only reject after it started."""
-    if cfg.input == "estimated":
-        raise BrlInputError("--input estimated needs the segmentation net of `brl train-seg`, which is not built "
-                            "yet; use --input gt")
+    _labeler(cfg)
+
+
+def _labeler(cfg: TrainConfig) -> Callable[[np.ndarray], np.ndarray] | None:
+    if cfg.input != "estimated":
+        return None
+    from brlcli.segnet.infer import load_labeler
+
+    return load_labeler(cfg.segnet)
 
 
 def _make_env(cfg: TrainConfig) -> DrivingEnv:
-    check_inputs(cfg)
     return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training", kinds=cfg.route_kinds,
-                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh))
+                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh), labeler=_labeler(cfg))
 
 
 def _log_row(step: int, episode: int, decision: int, action: int, reward: float, terms: dict, learn: Any,
@@ -245,7 +251,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     if cfg.evaluate:
         from brlcli.evaluate import evaluate_lane_keeping
 
-        ev = evaluate_lane_keeping(agent, town=cfg.town, weather=cfg.weather)
+        ev = evaluate_lane_keeping(agent, town=cfg.town, weather=cfg.weather, labeler=_labeler(cfg))
         summary["eval"] = ev
     atomic_write_json(run_dir / "summary.json", {**provenance(cfg.to_dict()), "summary": summary})
     if progress:
