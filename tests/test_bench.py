@@ -119,3 +119,10 @@ def test_bench_cli_runs_and_rejects_bad_input(tmp_path: Path, model: Path) -> No
         assert r.returncode == 2, (args, r.stderr)
         assert r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr, (args, r.stderr)
     assert not (tmp_path / "bad").exists()
+
+
+def test_estimated_deploy_names_the_setting(tmp_path: Path, model: Path) -> None:
+    specs = subset(build_suite("paper"), "1")
+    rows = run_bench(specs, [PolicySpec("brl", "m", {"model": str(model), "deploy": "estimated"})],
+                     tmp_path / "e", {"suite": "paper", "seed": 0})
+    assert rows[0]["setting"] == "TGDE"

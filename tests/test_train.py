@@ -68,7 +68,8 @@ def test_parse_seeds() -> None:
             parse_seeds(bad)
 
 
-@pytest.mark.parametrize("args", [["--input", "estimated"], ["--seeds", "5-2"], ["--steps", "0"],
+@pytest.mark.parametrize("args", [["--input", "estimated", "--segnet", "missing.pt"], ["--input", "depth"],
+                                  ["--seeds", "5-2"], ["--steps", "0"],
                                   ["--weather", "Foggy"], ["--town", "town77"], ["--workers", "0"]])
 def test_cli_bad_input_is_one_line_exit_2(tmp_path: Path, args: list[str]) -> None:
     r = subprocess.run([sys.executable, "-m", "brlcli.cli", "train", "--out", str(tmp_path / "o"), *args],
@@ -102,3 +103,15 @@ def test_agent_beats_a_uniform_random_policy(tmp_path: Path) -> None:
         agent = BayesianAgent.load(tmp_path / str(seed) / "model.npz")
         rates.append(evaluate_lane_keeping(agent)["success_rate"])
     assert np.mean(rates) >= random_rate + 0.2, (rates, random_rate)
+
+
+def test_estimated_input_trains_on_the_shipped_segmentation_net(tmp_path: Path) -> None:
+    from brlcli.models import default_segnet_path
+
+    cfg = TrainConfig(steps=30, seed=0, input="estimated", segnet=str(default_segnet_path()), evaluate=False)
+    train_run(cfg, tmp_path / "te")
+    gt = TrainConfig(steps=30, seed=0, evaluate=False)
+    train_run(gt, tmp_path / "tg")
+    log_te = (tmp_path / "te" / "log.csv").read_text()
+    assert len(log_te.splitlines()) == 31
+    assert log_te != (tmp_path / "tg" / "log.csv").read_text()  # the estimated states differ from GT ones
