@@ -10,11 +10,9 @@ depend on the number of workers, the shard or the order in which episodes ran.
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import os
-import zipfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +23,7 @@ import numpy as np
 from brlcli.bench.metrics import FOOTPRINT_THRESHOLD, episode_infractions, km_driven
 from brlcli.bench.suites import GOAL_DISTANCE_M, SUITE_VERSION, EpisodeSpec
 from brlcli.errors import BrlInputError
+from brlcli.npzio import save_npz
 from brlcli.provenance import atomic_write_json, provenance
 from brlcli.sim.town import load_town
 from brlcli.sim.vehicle import Control
@@ -73,22 +72,8 @@ class PolicySpec:
         return build_policy(self.kind, self.name, self.options)
 
 
-def _npz_compressed(arrays: dict[str, np.ndarray]) -> bytes:
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for key, value in arrays.items():
-            member = io.BytesIO()
-            np.lib.format.write_array(member, np.asarray(value), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            zf.writestr(info, member.getvalue())
-    return buf.getvalue()
-
-
 def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int) -> tuple[dict, dict]:
     """Drive one episode; returns the result record and the per-frame log arrays."""
-    from brlcli.bench.suites import GOAL_DISTANCE_M as _goal
-
     world.set_weather(spec.weather)
     route = world.network.route(spec.start, spec.goal)
     frame = world.reset(spec.start, seed=spec.seed(bench_seed))
@@ -111,7 +96,7 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
         for k in LOG_FIELDS:
             log[k][n] = getattr(frame.measurements, k)
         controls[n] = (control.steer, control.throttle, control.brake)
-        if math.hypot(frame.measurements.x - gx, frame.measurements.y - gy) <= _goal:
+        if math.hypot(frame.measurements.x - gx, frame.measurements.y - gy) <= GOAL_DISTANCE_M:
             success = True
             break
     log = {k: v[: n + 1] for k, v in log.items()}
@@ -154,10 +139,7 @@ class _Worker:
             self.worlds[key] = World(spec.town, vehicles=spec.vehicles, pedestrians=spec.pedestrians, seed=0)
         result, log = run_episode(self.worlds[key], spec, self.policies[p_idx], self.seed)
         path = self.frames_dir / _safe(result["policy"]) / f"{_safe(spec.id)}.npz"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        from brlcli.provenance import atomic_write_bytes
-
-        atomic_write_bytes(path, _npz_compressed(log))
+        save_npz(path, log, compress=True)
         result["frames_file"] = str(path.relative_to(self.frames_dir.parent))
         return result
 
@@ -258,8 +240,6 @@ def suite_version(suite: str) -> int:
     """Version of a suite's definition."""
     return SUITE_VERSION[suite]
 
-
-__all__ = ["GOAL_DISTANCE_M", "Observation", "Policy", "PolicySpec", "read_results", "run_bench", "run_episode"]
 
 
 def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, str]]:

@@ -99,7 +99,6 @@ class World:
         self._episode = -1
         self.frame_index = 0
         self._collisions = np.zeros(3)  # vehicles, pedestrians, other
-        self._last: Frame | None = None
         u = (np.arange(FOOTPRINT_SAMPLES[0]) + 0.5) / FOOTPRINT_SAMPLES[0] - 0.5
         v = (np.arange(FOOTPRINT_SAMPLES[1]) + 0.5) / FOOTPRINT_SAMPLES[1] - 0.5
         uu, vv = np.meshgrid(u * LENGTH_M, v * WIDTH_M)
@@ -251,7 +250,6 @@ class World:
             frame = Frame(self.frame_index, m, rgb, labels, depth, ctl)
         else:
             frame = Frame(self.frame_index, m, control=ctl)
-        self._last = frame
         return frame
 
     def set_weather(self, weather: int | str | Weather) -> None:
