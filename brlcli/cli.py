@@ -202,6 +202,8 @@ def collect(
 @app.command()
 def bench(
     suite: Annotated[str, typer.Option(help="paper (lane-keeping table) or corl2017.")] = "paper",
+    agent: Annotated[str, typer.Option(help="brl (trained models) or autopilot (privileged expert baseline).")]
+    = "brl",
     model: Annotated[str | None, typer.Option(help="A trained BRL model (model.npz or its run directory).")] = None,
     models: Annotated[list[str] | None, typer.Option(help="A model set: a directory of seed_N/ runs, or a glob.")]
     = None,
@@ -237,8 +239,13 @@ def bench(
     specs = take_shard(subset(build_suite(suite, conditions, tasks, weathers), episodes), k, n)
     if deploy not in ("gt", "estimated"):
         raise_input(f"--deploy must be gt or estimated, not '{deploy}'")
-    pols = [PolicySpec("brl", name, {"model": path, "deploy": deploy, "segnet": segnet})
-            for name, path in find_models(model, models)]
+    if agent == "autopilot":
+        pols = [PolicySpec("autopilot", "autopilot", {})]
+    elif agent == "brl":
+        pols = [PolicySpec("brl", name, {"model": path, "deploy": deploy, "segnet": segnet})
+                for name, path in find_models(model, models)]
+    else:
+        raise_input(f"unknown agent '{agent}'; choose brl or autopilot")
     for p in pols:  # load every model once here: a bad file fails before anything is written
         build_policy(p.kind, p.name, p.options)
     config = {"suite": suite, "suite_version": suite_version(suite), "town_versions": town_versions(specs),

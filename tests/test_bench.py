@@ -126,3 +126,11 @@ def test_estimated_deploy_names_the_setting(tmp_path: Path, model: Path) -> None
     rows = run_bench(specs, [PolicySpec("brl", "m", {"model": str(model), "deploy": "estimated"})],
                      tmp_path / "e", {"suite": "paper", "seed": 0})
     assert rows[0]["setting"] == "TGDE"
+
+
+def test_autopilot_baseline_drives_the_routes(tmp_path: Path) -> None:
+    specs = [s for s in build_suite("paper", weathers="1") if s.task != "straight"][:2]
+    rows = run_bench(specs, [PolicySpec("autopilot", "autopilot", {})], tmp_path / "ap", {"suite": "paper", "seed": 0})
+    assert len(rows) == 2
+    assert all(r["success"] and not r["collided"] for r in rows)
+    assert all(r["either_steps"] == 0 for r in rows) and rows[0]["setting"] == "autopilot"

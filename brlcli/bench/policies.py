@@ -56,7 +56,7 @@ class BRLPolicy:
             self.labeler = load_labeler(segnet)
         self._rng = np.random.default_rng(0)
 
-    def reset(self, spec: EpisodeSpec) -> None:
+    def reset(self, spec: EpisodeSpec, world: Any) -> None:
         """Greedy policy: nothing to reset."""
 
     def decide(self, obs: Observation) -> Control:
@@ -65,8 +65,36 @@ class BRLPolicy:
         return ACTIONS[self.agent.act(state_vector(labels), self._rng, greedy=True)]
 
 
+class AutopilotPolicy:
+    """The privileged expert of `brl collect` (route, lane geometry, traffic; no noise): a reference upper bound."""
+
+    frames_per_decision = 1
+    needs_camera = False
+    setting = "autopilot"
+
+    def __init__(self, name: str = "autopilot") -> None:
+        self.name = name
+        self._pilot: Any = None
+
+    def reset(self, spec: EpisodeSpec, world: Any) -> None:
+        """Plan the episode's route and drive it."""
+        from brlcli.autopilot import Autopilot
+
+        route = world.network.route(spec.start, spec.goal)
+        self._pilot = Autopilot(world, route, np.random.default_rng(0), noise=None)
+
+    def decide(self, obs: Observation) -> Control:
+        """The expert's control for the current measurements."""
+        return self._pilot.expert(obs.measurements)
+
+
+AGENTS = ("brl", "autopilot")
+
+
 def build_policy(kind: str, name: str, options: dict[str, Any]) -> Any:
     """A policy from its kind and options."""
     if kind == "brl":
         return BRLPolicy(name, **options)
-    raise BrlInputError(f"unknown agent '{kind}'; available: brl")
+    if kind == "autopilot":
+        return AutopilotPolicy(name)
+    raise BrlInputError(f"unknown agent '{kind}'; choose from {', '.join(AGENTS)}")

@@ -37,8 +37,8 @@ LOG_FIELDS = ("game_time_s", "x", "y", "yaw_deg", "forward_speed_kmh", "collisio
 class Observation:
     """What a policy sees at a decision: camera images, measurements and the route command."""
 
-    rgb: np.ndarray
-    labels: np.ndarray
+    rgb: np.ndarray | None
+    labels: np.ndarray | None
     measurements: Any
     command: int
 
@@ -50,8 +50,8 @@ class Policy(Protocol):
     setting: str
     frames_per_decision: int
 
-    def reset(self, spec: EpisodeSpec) -> None:
-        """Start of an episode."""
+    def reset(self, spec: EpisodeSpec, world: World) -> None:
+        """Start of an episode (privileged policies may keep the world to read the route and the traffic)."""
 
     def decide(self, obs: Observation) -> Control:
         """Control to hold until the next decision."""
@@ -77,7 +77,7 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
     world.set_weather(spec.weather)
     route = world.network.route(spec.start, spec.goal)
     frame = world.reset(spec.start, seed=spec.seed(bench_seed))
-    policy.reset(spec)
+    policy.reset(spec, world)
     n_max = math.ceil(spec.timeout_s / FRAME_DT_S)
     log = {k: np.zeros(n_max + 1) for k in LOG_FIELDS}
     controls = np.zeros((n_max + 1, 3))
@@ -88,7 +88,12 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
     for i in range(n_max):
         m = frame.measurements
         if i % policy.frames_per_decision == 0:
-            rgb, labels = (frame.rgb, frame.labels) if frame.labels is not None else world.render()[:2]
+            if not getattr(policy, "needs_camera", True):
+                rgb, labels = None, None
+            elif frame.labels is not None:
+                rgb, labels = frame.rgb, frame.labels
+            else:
+                rgb, labels = world.render()[:2]
             s, _ = route.project(m.x, m.y)
             control = policy.decide(Observation(rgb, labels, m, int(route.command_at(s))))
         frame = world.step(control, render=False)
