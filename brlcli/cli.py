@@ -205,8 +205,8 @@ def bench(
     agent: Annotated[str, typer.Option(help="brl (trained models) or autopilot (privileged expert baseline).")]
     = "brl",
     model: Annotated[str | None, typer.Option(help="A trained BRL model (model.npz or its run directory).")] = None,
-    models: Annotated[list[str] | None, typer.Option(help="A model set: a directory of seed_N/ runs, or a glob.")]
-    = None,
+    models: Annotated[list[str] | None, typer.Option(help="A model set: a directory of seed_N/ runs, or a glob "
+                                                          "(default: the shipped GT set models/brl_gt).")] = None,
     deploy: Annotated[str, typer.Option(help="Deployment input: gt or estimated.")] = "gt",
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --deploy estimated (default: shipped).")]
     = None,

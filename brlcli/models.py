@@ -22,3 +22,12 @@ def models_dir() -> Path:
 def default_segnet_path() -> Path:
     """The shipped segmentation net used for the 'estimated' input when no other is given."""
     return models_dir() / DEFAULT_SEGNET
+
+
+DEFAULT_MODEL_SET = "brl_gt"
+
+
+def default_model_set() -> Path | None:
+    """The shipped nine-seed GT-trained BRL model set (used by `brl bench` when no model is given)."""
+    path = models_dir() / DEFAULT_MODEL_SET
+    return path if path.is_dir() else None

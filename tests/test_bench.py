@@ -134,3 +134,13 @@ def test_autopilot_baseline_drives_the_routes(tmp_path: Path) -> None:
     assert len(rows) == 2
     assert all(r["success"] and not r["collided"] for r in rows)
     assert all(r["either_steps"] == 0 for r in rows) and rows[0]["setting"] == "autopilot"
+
+
+def test_without_a_model_the_shipped_gt_set_is_used() -> None:
+    from brlcli.bench.runner import find_models
+
+    found = find_models(None, None)
+    assert [name for name, _ in found] == [f"brl_gt/seed_{k}" for k in range(9)]
+    for _, path in found:
+        agent = BayesianAgent.load(path)
+        assert agent.state_dim == 30 and agent.n_actions == 4

@@ -275,7 +275,12 @@ def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, 
         for p in paths:
             found.append((f"{p.parent.parent.name}/{p.parent.name}", str(p)))
     if not found:
-        raise BrlInputError("give a policy: --model FILE or --models DIR")
+        from brlcli.models import default_model_set
+
+        default = default_model_set()
+        if default is None:
+            raise BrlInputError("give a policy: --model FILE or --models DIR")
+        return find_models(None, [str(default)])
     names = [n for n, _ in found]
     if len(set(names)) != len(names):
         raise BrlInputError("two models have the same name; give them distinct directories")
