@@ -76,6 +76,8 @@ def train(
     evaluate: Annotated[bool, typer.Option(help="Greedy evaluation on the lane-keeping routes at the end.")] = True,
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --input estimated (default: shipped).")]
     = None,
+    curve_every: Annotated[int, typer.Option(help="Evaluate greedily on the paper suite every N steps and write "
+                                                  "learning_curve.csv (0: never).")] = 0,
 ) -> None:
     """Online Bayesian RL training of the driving agent (paper Sec. III-IV)."""
     from rich.console import Console
@@ -93,7 +95,7 @@ def train(
         segnet = str(default_segnet_path())
     cfg = TrainConfig(town=town, weather=get_weather(weather).id, input=input, steps=steps, seed=seed_list[0],
                       variant=variant, target_speed_kmh=target_speed_kmh, evaluate=evaluate,
-                      segnet=segnet if input == "estimated" else None)
+                      segnet=segnet if input == "estimated" else None, curve_every=curve_every)
     from brlcli.sim.town import load_town
 
     load_town(town)
@@ -202,9 +204,10 @@ def collect(
 @app.command()
 def bench(
     suite: Annotated[str, typer.Option(help="paper (lane-keeping table) or corl2017.")] = "paper",
-    agent: Annotated[str, typer.Option(help="brl (trained models) or autopilot (privileged expert baseline).")]
-    = "brl",
-    model: Annotated[str | None, typer.Option(help="A trained BRL model (model.npz or its run directory).")] = None,
+    agent: Annotated[str, typer.Option(help="brl (trained models), autopilot (privileged expert), mp (modular "
+                                            "pipeline), il (imitation learning), dqn (deep RL).")] = "brl",
+    model: Annotated[str | None, typer.Option(help="A trained model: BRL model.npz or run dir; il: il.pt or its dir; "
+                                                   "dqn: drl.pt or its dir (default: the shipped one).")] = None,
     models: Annotated[list[str] | None, typer.Option(help="A model set: a directory of seed_N/ runs, or a glob "
                                                           "(default: the shipped GT set models/brl_gt).")] = None,
     deploy: Annotated[str, typer.Option(help="Deployment input: gt or estimated.")] = "gt",
@@ -223,12 +226,12 @@ def bench(
     out: Annotated[Path, typer.Option("--out", help="Results directory.")] = Path("runs/bench"),
     resume: Annotated[bool, typer.Option("--resume", help="Skip episodes already in --out.")] = False,
 ) -> None:
-    """Run the paper's test suite or the CoRL2017 benchmark for BRL models (the setting name follows the inputs)."""
+    """Run the paper's test suite or the CoRL2017 benchmark for BRL models or a baseline (setting from the inputs)."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    from brlcli.bench.policies import build_policy
+    from brlcli.bench.policies import baseline_specs, build_policy
     from brlcli.bench.runner import PolicySpec, find_models, prepare, run_bench, suite_version, town_versions
     from brlcli.bench.suites import build_suite, parse_shard, subset
     from brlcli.bench.suites import shard as take_shard
@@ -239,13 +242,13 @@ def bench(
     specs = take_shard(subset(build_suite(suite, conditions, tasks, weathers), episodes), k, n)
     if deploy not in ("gt", "estimated"):
         raise_input(f"--deploy must be gt or estimated, not '{deploy}'")
-    if agent == "autopilot":
-        pols = [PolicySpec("autopilot", "autopilot", {})]
-    elif agent == "brl":
+    if agent == "brl":
         pols = [PolicySpec("brl", name, {"model": path, "deploy": deploy, "segnet": segnet})
                 for name, path in find_models(model, models)]
     else:
-        raise_input(f"unknown agent '{agent}'; choose brl or autopilot")
+        if models:
+            raise_input(f"--models is for brl model sets; give --agent {agent} one --model")
+        pols = [PolicySpec(agent, name, opts) for name, opts in baseline_specs(agent, model, deploy, segnet)]
     for p in pols:  # load every model once here: a bad file fails before anything is written
         build_policy(p.kind, p.name, p.options)
     config = {"suite": suite, "suite_version": suite_version(suite), "town_versions": town_versions(specs),
@@ -300,6 +303,10 @@ def report(
     runs: Annotated[list[Path] | None, typer.Option("--runs", help="Training runs for the convergence plots: a run "
                                                                    "directory or a directory of seed_N/ runs "
                                                                    "(repeatable).")] = None,
+    curves: Annotated[list[Path] | None, typer.Option("--curves", help="Runs with learning_curve.csv (brl train "
+                                                                       "--curve-every, brl train-rl) for the sample-"
+                                                                       "efficiency table and plot (repeatable).")]
+    = None,
     out: Annotated[Path, typer.Option("--out", help="Report directory.")] = Path("runs/report"),
     formats: Annotated[str, typer.Option("--format", help="Comma-separated outputs: md, tex, csv, html.")]
     = "md,tex,csv,html",
@@ -312,7 +319,7 @@ def report(
 
     console = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
     with console.status("building the report"):
-        rep = build_report(results or [], runs or [], out, formats)
+        rep = build_report(results or [], runs or [], out, formats, curve_dirs=curves or [])
     table = Table(title=f"brl report: {rep['episodes']} episodes -> {out}")
     for col in ("suite", "setting", "agent", "episodes", "success", "collision-free", "either", "score", "km"):
         table.add_column(col, justify="left" if col in ("suite", "setting", "agent") else "right")
@@ -384,6 +391,69 @@ def train_seg(
         raise typer.Exit(130) from None
     console.print(f"best mean category IoU on {next(iter(val_frames))}: {result['best']:.3f}")
     typer.echo(str(out / "segnet.pt"))
+
+
+@app.command("train-rl")
+def train_rl(
+    algo: Annotated[str, typer.Option(help="Deep RL algorithm (Stable-Baselines3): dqn.")] = "dqn",
+    town: Annotated[str, typer.Option(help="Town to train in (the BRL agent's: town01).")] = "town01",
+    weather: Annotated[str, typer.Option(help="Weather id or name.")] = "1",
+    input: Annotated[str, typer.Option("--input", help="State source: gt or estimated.")] = "gt",
+    steps: Annotated[int, typer.Option(help="Budget in environment steps (decisions).")] = 100_000,
+    eval_every: Annotated[int, typer.Option(help="Evaluate on --eval-suite every N env steps (learning curve).")]
+    = 5_000,
+    eval_suite: Annotated[str, typer.Option(help="paper (the lane-keeping test suite) or none.")] = "paper",
+    seed: Annotated[int, typer.Option(help="Seed of the network, exploration and routes.")] = 0,
+    out: Annotated[Path, typer.Option("--out", help="Run directory (drl.pt, learning_curve.csv, checkpoint/).")]
+    = Path("runs/dqn"),
+    resume: Annotated[bool, typer.Option("--resume", help="Continue from the last finished chunk in --out.")] = False,
+    segnet: Annotated[str | None, typer.Option(help="Segmentation net for --input estimated (default: shipped).")]
+    = None,
+) -> None:
+    """Train the deep RL baseline (SB3 DQN) on the BRL agent's env, state, reward and actions."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from brlcli.baselines.deeprl import DeepRLConfig, train_deep_rl
+    from brlcli.sim.town import load_town
+    from brlcli.sim.weather import get_weather
+
+    load_town(town)
+    if input == "estimated" and segnet is None:
+        from brlcli.models import default_segnet_path
+
+        segnet = str(default_segnet_path())
+    cfg = DeepRLConfig(algo=algo, town=town, weather=get_weather(weather).id, input=input, steps=steps,
+                       eval_every=eval_every, eval_suite=eval_suite, seed=seed,
+                       segnet=segnet if input == "estimated" else None)
+    if input == "estimated":
+        from brlcli.segnet.infer import load_labeler
+
+        load_labeler(segnet)
+    console = Console(stderr=True)
+    columns = (TextColumn(f"{algo}"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("episodes {task.fields[eps]}  epsilon {task.fields[expl]:.2f}  paper success "
+                          "{task.fields[succ]}"), TimeElapsedColumn())
+    with Progress(*columns, console=console) as bar:
+        task = bar.add_task("", total=steps, eps=0, expl=1.0, succ="-")
+
+        def report(p) -> None:  # p: brlcli.baselines.deeprl.DeepRLProgress
+            fields = {"completed": p.env_steps, "eps": p.episodes, "expl": p.exploration}
+            if p.success is not None:
+                fields["succ"] = f"{p.success:.0%} at {p.env_steps}"
+            bar.update(task, **fields)
+
+        try:
+            result = train_deep_rl(cfg, out, resume=resume, progress=report)
+        except KeyboardInterrupt:
+            console.print(f"interrupted: finished chunks are checkpointed; continue with --resume --out {out}")
+            raise typer.Exit(130) from None
+    s = result["summary"]
+    line = f"{s['env_steps']} env steps, {s['episodes']} episodes, {s['steps_per_s']:.0f} steps/s"
+    if s.get("final_eval"):
+        line += f", paper-suite success {s['final_eval']['success']:.0%}"
+    console.print(line)
+    typer.echo(str(out / "drl.pt"))
 
 
 def raise_input(message: str) -> None:

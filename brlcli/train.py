@@ -51,12 +51,15 @@ class TrainConfig:
     evaluate: bool = True
     segnet: str | None = None  # the segmentation net for input "estimated" (None: the shipped one)
     params: dict[str, Any] = field(default_factory=dict)
+    curve_every: int = 0  # evaluate greedily on the paper suite every N steps (learning_curve.csv); 0 = never
 
     def __post_init__(self) -> None:
         if self.input not in ("gt", "estimated"):
             raise BrlInputError(f"--input must be gt or estimated, not '{self.input}'")
         if self.steps < 1:
             raise BrlInputError("--steps must be at least 1")
+        if self.curve_every < 0:
+            raise BrlInputError("--curve-every must be >= 0")
         if self.variant not in ("paper", "reference-code"):
             raise BrlInputError(f"unknown variant '{self.variant}'; choose paper or reference-code")
         get_weather(self.weather)
@@ -164,6 +167,34 @@ class _Checkpoint:
         return agent, rng, state
 
 
+class _Curve:
+    """Greedy paper-suite evaluations during training (learning_curve.csv); rows past a resumed step are redone."""
+
+    def __init__(self, run_dir: Path, cfg: TrainConfig, env: DrivingEnv, step: int) -> None:
+        from brlcli.curve import CURVE_FILE, SuiteEvaluator, read_curve
+
+        self.path = run_dir / CURVE_FILE
+        self.rows = [r for r in read_curve(self.path) if r["env_steps"] <= step] if self.path.exists() else []
+        self.labeler = env.labeler
+        self.setting = "TGDG" if cfg.input == "gt" else "TEDE"
+        self.evaluator = SuiteEvaluator("paper")
+        self.eval_s = 0.0
+
+    def evaluate(self, agent: BayesianAgent, step: int) -> None:
+        from brlcli.curve import StatePolicy, write_curve
+
+        t0 = time.perf_counter()
+        rng = np.random.default_rng(0)  # greedy acting; never the training generator
+        policy = StatePolicy("brl", self.setting, lambda s: agent.act(s.astype(np.float64), rng, greedy=True),
+                             self.labeler)
+        self.rows.append({"env_steps": step, **self.evaluator.evaluate(policy)})
+        write_curve(self.path, self.rows)
+        self.eval_s += time.perf_counter() - t0
+
+    def close(self) -> None:
+        self.evaluator.close()
+
+
 def _truncate_log(path: Path, rows: int) -> None:
     """Keep the header and the first `rows` data rows of a log (drops rows of an unfinished episode)."""
     if not path.exists():
@@ -182,7 +213,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         if not resume:
             raise BrlInputError(f"{run_dir} already holds a training run; pass --resume or choose another --out")
         saved = json.loads(config_path.read_text())["config"]
-        if saved != cfg.to_dict():
+        if TrainConfig.from_dict(saved).to_dict() != cfg.to_dict():
             raise BrlInputError(f"{run_dir} holds a run with another configuration; resume it with the same options")
     run_dir.mkdir(parents=True, exist_ok=True)
     if not config_path.exists():
@@ -202,6 +233,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         agent, rng, state = loaded
         step, episode, stats = state["step"], state["episode"], state["stats"]
         _truncate_log(log_path, state["log_rows"])
+    curve = _Curve(run_dir, cfg, env, step) if cfg.curve_every else None
     t0 = time.perf_counter() - stats["wall_s"]
     recent: list[float] = []
     td = 0.0
@@ -225,6 +257,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                                                                 info["measurements"])])
                     stats["reward_sum"] += reward
                     recent = [*recent, reward][-100:]
+                    if curve is not None and step % cfg.curve_every == 0:
+                        curve.evaluate(agent, step)
                     if progress and step % 25 == 0:
                         progress(Progress(cfg.seed, step, cfg.steps, episode, float(np.mean(recent)), td,
                                           agent.n_components))
@@ -240,7 +274,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
             stats["goals"] += int(reached)
             stats["wall_s"] = time.perf_counter() - t0
             ckpt.save(agent, rng, step, episode, step, stats)
-    wall = time.perf_counter() - t0
+    wall = time.perf_counter() - t0 - (curve.eval_s if curve is not None else 0.0)  # learning time only
     agent.save(run_dir / "model.npz")
     summary: dict[str, Any] = {
         "seed": cfg.seed, "steps": step, "episodes": stats["episodes"], "episodes_reaching_goal": stats["goals"],
@@ -248,6 +282,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         "alpha": agent.alpha, "tau": agent.tau, "rho": agent.rho, "wall_s": wall, "steps_per_s": step / wall,
     }
     env.close()
+    if curve is not None:
+        curve.close()
     if cfg.evaluate:
         from brlcli.evaluate import evaluate_lane_keeping
 

@@ -88,7 +88,9 @@ class AutopilotPolicy:
         return self._pilot.expert(obs.measurements)
 
 
-AGENTS = ("brl", "autopilot")
+AGENTS = ("brl", "autopilot", "mp", "il", "dqn")
+"""brl: Bayesian RL models; autopilot: privileged expert; mp: modular pipeline; il: conditional imitation
+learning; dqn: deep RL (Stable-Baselines3 DQN)."""
 
 
 def build_policy(kind: str, name: str, options: dict[str, Any]) -> Any:
@@ -97,4 +99,31 @@ def build_policy(kind: str, name: str, options: dict[str, Any]) -> Any:
         return BRLPolicy(name, **options)
     if kind == "autopilot":
         return AutopilotPolicy(name)
+    if kind == "mp":
+        from brlcli.baselines.mp import ModularPipelinePolicy
+
+        return ModularPipelinePolicy(name, **options)
+    if kind == "il":
+        from brlcli.baselines.il import ILPolicy
+
+        return ILPolicy(name, **options)
+    if kind == "dqn":
+        from brlcli.baselines.deeprl import DeepRLPolicy
+
+        return DeepRLPolicy(name, **options)
     raise BrlInputError(f"unknown agent '{kind}'; choose from {', '.join(AGENTS)}")
+
+
+def baseline_specs(agent: str, model: str | None, deploy: str, segnet: str | None) -> list[tuple[str, dict]]:
+    """(policy name, options) of a baseline agent: mp needs no model; il and dqn take --model or the shipped one."""
+    if agent == "autopilot":
+        return [("autopilot", {})]
+    if agent == "mp":
+        return [("mp", {"deploy": deploy, "segnet": segnet})]
+    if agent in ("il", "dqn"):
+        from brlcli.models import models_dir
+
+        path = Path(model) if model else models_dir() / agent
+        name = agent if model is None else f"{agent}/{path.parent.name if path.is_file() else path.name}"
+        return [(name, {"model": str(path), "deploy": deploy, "segnet": segnet})]
+    raise BrlInputError(f"unknown agent '{agent}'; choose from {', '.join(AGENTS)}")

@@ -149,7 +149,7 @@ def _training_section(runs: list[TrainingRun], images: dict[str, Callable[[], by
     return section
 
 
-def assemble(results: Results, runs: list[TrainingRun], plots: bool) -> dict[str, Any]:
+def assemble(results: Results, runs: list[TrainingRun], plots: bool, curves: list | None = None) -> dict[str, Any]:
     """Sections (tables, figure makers), notes and the terminal summary, all in memory."""
     notes = list(results.notes)
     images: dict[str, Callable[[], bytes]] = {}
@@ -169,11 +169,22 @@ def assemble(results: Results, runs: list[TrainingRun], plots: bool) -> dict[str
             notes.append(f"Results of suite '{suite}' are not reported (no tables for it yet).")
     if runs:
         sections.append(_training_section(runs, images, plots))
+    if curves:
+        from brlcli.report import curves as cv
+
+        section = cv.curves_section(curves)
+        if plots:
+            images["learning_curves.png"] = lambda: cv.curve_figure(curves)
+            section.figures.append(tb.Figure("learning_curves.png", "Sample efficiency",
+                                             "Mean greedy success on the paper suite against environment steps (log "
+                                             "scale), ± 1 std over runs; one line per learner."))
+        sections.append(section)
     return {"sections": sections, "notes": notes, "images": images, "summary": summary}
 
 
 def build_report(results_dirs: Sequence[str | Path], run_dirs: Sequence[str | Path] = (),
-                 out: str | Path = "runs/report", formats: str | Sequence[str] | None = FORMATS) -> dict[str, Any]:
+                 out: str | Path = "runs/report", formats: str | Sequence[str] | None = FORMATS,
+                 curve_dirs: Sequence[str | Path] = ()) -> dict[str, Any]:
     """Merge `brl bench` results directories (and `brl train` runs) into a report in `out`.
 
     Returns {'out', 'files' (paths relative to out), 'episodes', 'summary' (rows for a terminal table),
@@ -185,8 +196,11 @@ def build_report(results_dirs: Sequence[str | Path], run_dirs: Sequence[str | Pa
         raise BrlInputError(f"--out {out} is a file, not a directory")
     results = load_results(results_dirs)
     runs = load_runs(run_dirs) if run_dirs else []
+    from brlcli.report.curves import load_curves
+
+    curves = load_curves(list(curve_dirs)) if curve_dirs else []
     plots = "md" in fmts or "html" in fmts
-    parts = assemble(results, runs, plots)
+    parts = assemble(results, runs, plots, curves)
     sections, notes = parts["sections"], parts["notes"]
     images = {name: make() for name, make in sorted(parts["images"].items())}
 
@@ -225,6 +239,7 @@ def build_report(results_dirs: Sequence[str | Path], run_dirs: Sequence[str | Pa
         embedded = {f"figures/{name}": data for name, data in images.items()}
         write("report.html", render.report_html(title, header, sections, notes, embedded).encode())
     record = provenance({"results": [str(p) for p in results_dirs], "runs": [str(p) for p in run_dirs],
+                         "curves": [str(p) for p in curve_dirs],
                          "out": str(out), "formats": list(fmts)})
     record["inputs"] = [{"path": str(d.path), "suite": d.suite, "suite_version": d.suite_version,
                          "town_versions": d.town_versions, "episodes": d.episodes,

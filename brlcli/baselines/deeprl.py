@@ -1,0 +1,350 @@
+"""Deep RL baseline: Stable-Baselines3 DQN on the BRL agent's task (same env, 30-number state, reward, 4 actions).
+
+Training runs in chunks of `eval_every` environment steps. Each chunk starts from a fresh environment reset and
+seeds every generator (python, numpy, torch, action space, env) from (seed, chunk), so a run resumed from the
+checkpoint of its last finished chunk is bit-identical to an uninterrupted one. After each chunk the greedy
+Q-network is evaluated on the paper's test suite and a row is added to `learning_curve.csv` (see brlcli.curve).
+
+Run directory:
+    config.json          resolved configuration + brl version + git commit
+    learning_curve.csv   paper-suite success etc. after every chunk (env steps = decisions)
+    drl.pt               the Q-network of the last finished chunk (torch, weights_only, format-versioned)
+    checkpoint/          Q and target networks, optimizer, replay buffer (npz), counters: the resume point
+    summary.json         at the end: steps, wall time, final evaluation
+SB3's own save/load (which unpickles) is never used: networks are written as plain state dicts.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from brlcli.errors import BrlInputError
+from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
+
+DRL_FORMAT = "brl-drl"
+DRL_FORMAT_VERSION = 1
+CHECKPOINT_VERSION = 1
+ALGOS = ("dqn",)
+
+
+@dataclass(frozen=True)
+class DeepRLConfig:
+    """A deep RL training run (saved as `config.json`); defaults are the documented budget."""
+
+    algo: str = "dqn"
+    town: str = "town01"
+    weather: int = 1
+    input: str = "gt"
+    steps: int = 100_000
+    eval_every: int = 5_000
+    eval_suite: str = "paper"
+    seed: int = 0
+    learning_rate: float = 5e-4
+    buffer_size: int = 100_000
+    learning_starts: int = 1_000
+    batch_size: int = 64
+    gamma: float = 0.9
+    train_freq: int = 4
+    target_update_interval: int = 1_000
+    exploration_fraction: float = 0.3
+    exploration_final_eps: float = 0.05
+    net_arch: tuple[int, ...] = (64, 64)
+    target_speed_kmh: float = 20.0
+    segnet: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGOS:
+            raise BrlInputError(f"unknown deep RL algorithm '{self.algo}'; choose from {', '.join(ALGOS)}")
+        if self.input not in ("gt", "estimated"):
+            raise BrlInputError(f"--input must be gt or estimated, not '{self.input}'")
+        if self.steps < 1 or self.eval_every < 1:
+            raise BrlInputError("--steps and --eval-every must be at least 1")
+        if self.eval_every % self.train_freq:
+            raise BrlInputError(f"--eval-every must be a multiple of the train frequency ({self.train_freq})")
+        if self.eval_suite not in ("paper", "none"):
+            raise BrlInputError(f"--eval-suite must be paper or none, not '{self.eval_suite}'")
+        from brlcli.sim.weather import get_weather
+
+        get_weather(self.weather)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        d = asdict(self)
+        d["net_arch"] = list(self.net_arch)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DeepRLConfig:
+        """Inverse of `to_dict`; unknown keys are an error."""
+        extra = set(d) - {f.name for f in fields(cls)}
+        if extra:
+            raise BrlInputError(f"unknown deep RL config keys: {', '.join(sorted(extra))}")
+        d = dict(d)
+        if "net_arch" in d:
+            d["net_arch"] = tuple(d["net_arch"])
+        return cls(**d)
+
+
+def q_network(net_arch: tuple[int, ...], state_dim: int, n_actions: int) -> nn.Sequential:
+    """The MLP Q-network with SB3's layer layout (Linear, ReLU, ..., Linear), so state dicts match."""
+    layers: list[nn.Module] = []
+    width = state_dim
+    for h in net_arch:
+        layers += [nn.Linear(width, h), nn.ReLU()]
+        width = h
+    layers.append(nn.Linear(width, n_actions))
+    return nn.Sequential(*layers)
+
+
+def save_model(path: Path, q_net: nn.Module, cfg: DeepRLConfig, env_steps: int) -> None:
+    """Write a Q-network file (state dict, architecture, training config) atomically."""
+    doc = {"format": DRL_FORMAT, "format_version": DRL_FORMAT_VERSION, "algo": cfg.algo,
+           "net_arch": list(cfg.net_arch), "state_dim": 30, "n_actions": 4, "env_steps": env_steps,
+           "train": json.dumps(cfg.to_dict(), sort_keys=True), "state_dict": q_net.state_dict()}
+    buf = io.BytesIO()
+    torch.save(doc, buf)
+    atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def load_model(path: str | Path) -> tuple[nn.Sequential, dict[str, Any]]:
+    """A Q-network file -> (network in eval mode, metadata with the training config); never unpickles."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "drl.pt"
+    if not path.is_file():
+        raise BrlInputError(f"deep RL model {path} does not exist; train one with brl train-rl")
+    try:
+        doc = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise BrlInputError(f"{path} is not a brl deep RL model ({type(exc).__name__})") from None
+    if not isinstance(doc, dict) or doc.get("format") != DRL_FORMAT:
+        raise BrlInputError(f"{path} is not a brl deep RL model")
+    if doc.get("format_version") != DRL_FORMAT_VERSION:
+        raise BrlInputError(f"deep RL model {path} has format version {doc.get('format_version')}, this brl reads "
+                            f"{DRL_FORMAT_VERSION}")
+    try:
+        net = q_network(tuple(int(h) for h in doc["net_arch"]), int(doc["state_dim"]), int(doc["n_actions"]))
+        net.load_state_dict(doc["state_dict"])
+        train = json.loads(doc["train"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise BrlInputError(f"deep RL model {path} is damaged: {exc}".splitlines()[0]) from None
+    if int(doc["state_dim"]) != 30 or int(doc["n_actions"]) != 4:
+        raise BrlInputError(f"deep RL model {path} has state size {doc['state_dim']} and {doc['n_actions']} actions; "
+                            "brl's task uses 30 and 4")
+    return net.eval(), {"algo": doc["algo"], "env_steps": int(doc["env_steps"]), "train": train}
+
+
+def greedy_action_fn(net: nn.Module) -> Callable[[np.ndarray], int]:
+    """state (30,) -> argmax_a Q(state, a)."""
+
+    def act(state: np.ndarray) -> int:
+        with torch.inference_mode():
+            q = net(torch.as_tensor(np.asarray(state, dtype=np.float32))[None])
+        return int(q[0].argmax())
+
+    return act
+
+
+class DeepRLPolicy:
+    """A trained DQN deployed greedily on GT or estimated labels (decision every 7 frames), for `brl bench`."""
+
+    needs_camera = True
+
+    def __init__(self, name: str = "dqn", model: str | None = None, deploy: str = "gt",
+                 segnet: str | None = None) -> None:
+        from brlcli.bench.policies import setting_name
+        from brlcli.curve import StatePolicy
+
+        if model is None:
+            raise BrlInputError("--agent dqn needs --model (a brl train-rl run directory or its drl.pt)")
+        if deploy not in ("gt", "estimated"):
+            raise BrlInputError(f"--deploy must be gt or estimated, not '{deploy}'")
+        net, meta = load_model(model)
+        labeler = None
+        if deploy == "estimated":
+            from brlcli.segnet.infer import load_labeler
+
+            labeler = load_labeler(segnet)
+        setting = f"{meta['algo'].upper()}-{setting_name(meta['train'].get('input', 'gt'), deploy)}"
+        self._inner = StatePolicy(name, setting, greedy_action_fn(net), labeler)
+        self.name, self.setting = name, setting
+        self.frames_per_decision = self._inner.frames_per_decision
+
+    def reset(self, spec: Any, world: Any) -> None:
+        """Greedy policy: nothing to reset."""
+
+    def decide(self, obs: Any) -> Any:
+        """Greedy action on the state of the (GT or estimated) label image."""
+        return self._inner.decide(obs)
+
+
+@dataclass
+class DeepRLProgress:
+    """A progress report of a deep RL run."""
+
+    env_steps: int
+    steps: int
+    episodes: int
+    exploration: float
+    success: float | None = None
+    done: bool = False
+
+
+def _chunk_seed(seed: int, chunk: int) -> int:
+    return int(np.random.default_rng([seed, chunk, 11]).integers(2**31))
+
+
+def _make_env(cfg: DeepRLConfig) -> Any:
+    from brlcli.reward import RewardParams
+    from brlcli.sim.gym_env import DrivingEnv
+
+    labeler = None
+    if cfg.input == "estimated":
+        from brlcli.segnet.infer import load_labeler
+
+        labeler = load_labeler(cfg.segnet)
+    return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training",
+                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh), labeler=labeler)
+
+
+def _build_dqn(cfg: DeepRLConfig, env: Any) -> Any:
+    from stable_baselines3 import DQN
+
+    return DQN("MlpPolicy", env, learning_rate=cfg.learning_rate, buffer_size=cfg.buffer_size,
+               learning_starts=cfg.learning_starts, batch_size=cfg.batch_size, gamma=cfg.gamma,
+               train_freq=cfg.train_freq, target_update_interval=cfg.target_update_interval,
+               exploration_fraction=cfg.exploration_fraction, exploration_final_eps=cfg.exploration_final_eps,
+               policy_kwargs={"net_arch": list(cfg.net_arch)}, seed=cfg.seed, device="cpu", verbose=0)
+
+
+_BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+
+
+def _save_checkpoint(run_dir: Path, model: Any, chunk: int, curve: list[dict], wall_s: float) -> None:
+    from brlcli.npzio import save_npz
+
+    ckpt = run_dir / "checkpoint"
+    buf = io.BytesIO()
+    torch.save({"q_net": model.q_net.state_dict(), "q_net_target": model.q_net_target.state_dict(),
+                "optimizer": model.policy.optimizer.state_dict()}, buf)
+    atomic_write_bytes(ckpt / "networks.pt", buf.getvalue())
+    rb = model.replay_buffer
+    save_npz(ckpt / "replay.npz", {k: getattr(rb, k) for k in _BUFFER_ARRAYS}, compress=True)
+    atomic_write_json(ckpt / "state.json", {
+        "version": CHECKPOINT_VERSION, "chunk": chunk, "num_timesteps": int(model.num_timesteps),
+        "n_calls": int(model._n_calls), "n_updates": int(model._n_updates), "episode_num": int(model._episode_num),
+        "buffer_pos": int(rb.pos), "buffer_full": bool(rb.full), "curve": curve, "wall_s": wall_s})
+
+
+def _load_checkpoint(run_dir: Path, model: Any) -> dict[str, Any] | None:
+    ckpt = run_dir / "checkpoint"
+    if not (ckpt / "state.json").exists():
+        return None
+    try:
+        state = json.loads((ckpt / "state.json").read_text())
+        if state.get("version") != CHECKPOINT_VERSION:
+            raise BrlInputError(f"checkpoint {ckpt} has version {state.get('version')}, this brl reads "
+                                f"{CHECKPOINT_VERSION}")
+        nets = torch.load(ckpt / "networks.pt", map_location="cpu", weights_only=True)
+        model.q_net.load_state_dict(nets["q_net"])
+        model.q_net_target.load_state_dict(nets["q_net_target"])
+        model.policy.optimizer.load_state_dict(nets["optimizer"])
+        with np.load(ckpt / "replay.npz", allow_pickle=False) as z:
+            for k in _BUFFER_ARRAYS:
+                getattr(model.replay_buffer, k)[...] = z[k]
+    except BrlInputError:
+        raise
+    except Exception as exc:
+        raise BrlInputError(f"checkpoint {ckpt} is damaged ({type(exc).__name__}); delete the run directory to start "
+                            "over") from None
+    model.num_timesteps = state["num_timesteps"]
+    model._n_calls = state["n_calls"]
+    model._n_updates = state["n_updates"]
+    model._episode_num = state["episode_num"]
+    model.replay_buffer.pos = state["buffer_pos"]
+    model.replay_buffer.full = state["buffer_full"]
+    return state
+
+
+def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
+                  progress: Callable[[DeepRLProgress], None] | None = None) -> dict[str, Any]:
+    """Train the deep RL baseline for `cfg.steps` env steps, evaluating every `cfg.eval_every`; resumable."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from brlcli.bench.policies import setting_name
+    from brlcli.curve import CURVE_FILE, StatePolicy, SuiteEvaluator, write_curve
+
+    run_dir = Path(run_dir)
+    config_path = run_dir / "config.json"
+    if config_path.exists():
+        if not resume:
+            raise BrlInputError(f"{run_dir} already holds a deep RL run; pass --resume or choose another --out")
+        saved = json.loads(config_path.read_text())["config"]
+        if DeepRLConfig.from_dict(saved).to_dict() != cfg.to_dict():
+            raise BrlInputError(f"{run_dir} holds a run with another configuration; resume it with the same options")
+    if (run_dir / "summary.json").exists():
+        return json.loads((run_dir / "summary.json").read_text())
+    run_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(config_path, provenance(cfg.to_dict()))
+    torch.set_num_threads(1)
+    env = _make_env(cfg)
+    model = _build_dqn(cfg, env)
+    state = _load_checkpoint(run_dir, model) if resume else None
+    chunk = state["chunk"] if state else 0
+    curve: list[dict] = state["curve"] if state else []
+    wall0 = state["wall_s"] if state else 0.0
+    t0 = time.perf_counter()
+    evaluator = SuiteEvaluator(cfg.eval_suite) if cfg.eval_suite != "none" else None
+    setting = f"{cfg.algo.upper()}-{setting_name(cfg.input, cfg.input)}"
+    n_chunks = -(-cfg.steps // cfg.eval_every)
+
+    class _Hooks(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.model._total_timesteps = cfg.steps  # exploration schedule over the whole budget, not the chunk
+
+        def _on_step(self) -> bool:
+            if progress and self.model.num_timesteps % 250 == 0:
+                progress(DeepRLProgress(self.model.num_timesteps, cfg.steps, self.model._episode_num,
+                                        float(self.model.exploration_rate)))
+            return True
+
+    try:
+        while chunk < n_chunks:
+            steps = min(cfg.eval_every, cfg.steps - chunk * cfg.eval_every)
+            model._last_obs = None  # every chunk starts from a fresh, seeded reset: resumable bit for bit
+            model.set_random_seed(_chunk_seed(cfg.seed, chunk))
+            model.learn(total_timesteps=steps, reset_num_timesteps=False, callback=_Hooks())
+            chunk += 1
+            q_net = model.q_net.q_net
+            save_model(run_dir / "drl.pt", q_net, cfg, int(model.num_timesteps))
+            if evaluator is not None:
+                pol = StatePolicy("dqn", setting, greedy_action_fn(q_net), env.labeler)
+                curve.append({"env_steps": int(model.num_timesteps), **evaluator.evaluate(pol)})
+                write_curve(run_dir / CURVE_FILE, curve)
+            _save_checkpoint(run_dir, model, chunk, curve, wall0 + time.perf_counter() - t0)
+            if progress:
+                progress(DeepRLProgress(int(model.num_timesteps), cfg.steps, model._episode_num,
+                                        float(model.exploration_rate), curve[-1]["success"] if curve else None))
+    finally:
+        env.close()
+        if evaluator is not None:
+            evaluator.close()
+    wall = wall0 + time.perf_counter() - t0
+    summary = {"env_steps": int(model.num_timesteps), "episodes": int(model._episode_num), "wall_s": wall,
+               "steps_per_s": model.num_timesteps / wall if wall > 0 else float("nan"),
+               "final_eval": curve[-1] if curve else None, "setting": setting}
+    atomic_write_json(run_dir / "summary.json", {**provenance(cfg.to_dict()), "summary": summary})
+    if progress:
+        progress(DeepRLProgress(int(model.num_timesteps), cfg.steps, model._episode_num,
+                                float(model.exploration_rate), curve[-1]["success"] if curve else None, done=True))
+    return {**provenance(cfg.to_dict()), "summary": summary}

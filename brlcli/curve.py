@@ -1,0 +1,120 @@
+"""Learning curves: greedy success on the paper's test suite against environment steps (decisions).
+
+Both learners write the same `learning_curve.csv` beside their run: `brl train --curve-every N` (the Bayesian RL
+agent) and `brl train-rl` (the deep RL baseline), so `brl report` can plot their sample efficiency side by side.
+An environment step is one decision (the action held for 7 simulator frames), the unit of the paper's t_max.
+Evaluation is greedy, uses its own worlds and never touches the learner's random generators.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from brlcli.bench.metrics import paper_score
+from brlcli.bench.runner import Observation, run_episode
+from brlcli.bench.suites import EpisodeSpec, build_suite
+from brlcli.errors import BrlInputError
+from brlcli.features import state_vector
+from brlcli.provenance import atomic_write_bytes
+from brlcli.sim.gym_env import ACTIONS, FRAMES_PER_DECISION
+from brlcli.sim.vehicle import Control
+from brlcli.sim.world import World
+
+CURVE_FILE = "learning_curve.csv"
+CURVE_COLUMNS = ("env_steps", "episodes", "success", "collision_free", "either", "score", "eval_suite")
+
+
+class StatePolicy:
+    """A bench policy from any greedy function of the 30-number state (BRL agent, DQN network)."""
+
+    frames_per_decision = FRAMES_PER_DECISION
+
+    def __init__(self, name: str, setting: str, act: Callable[[np.ndarray], int],
+                 labeler: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+        self.name = name
+        self.setting = setting
+        self.act = act
+        self.labeler = labeler
+
+    def reset(self, spec: EpisodeSpec, world: Any) -> None:
+        """Greedy state policy: nothing to reset."""
+
+    def decide(self, obs: Observation) -> Control:
+        """The action primitive chosen on the (ground-truth or estimated) label image's state."""
+        labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
+        return ACTIONS[int(self.act(state_vector(labels)))]
+
+
+class SuiteEvaluator:
+    """Runs a policy on a suite's episodes (worlds kept between calls); returns the paper's table figures."""
+
+    def __init__(self, suite: str = "paper", bench_seed: int = 0) -> None:
+        self.suite = suite
+        self.specs: list[EpisodeSpec] = build_suite(suite)
+        self.bench_seed = bench_seed
+        self._worlds: dict[tuple, World] = {}
+
+    def evaluate(self, policy: Any) -> dict[str, Any]:
+        """Success, collision-free and Either shares and the Score over every episode of the suite."""
+        results = []
+        for spec in self.specs:
+            key = (spec.town, spec.vehicles, spec.pedestrians)
+            if key not in self._worlds:
+                self._worlds[key] = World(spec.town, vehicles=spec.vehicles, pedestrians=spec.pedestrians, seed=0)
+            results.append(run_episode(self._worlds[key], spec, policy, self.bench_seed)[0])
+        n = len(results)
+        steps = sum(r["steps"] for r in results)
+        success = sum(r["success"] for r in results) / n
+        collision_free = sum(not r["collided"] for r in results) / n
+        either = sum(r["either_steps"] for r in results) / max(steps, 1)
+        return {"episodes": n, "success": success, "collision_free": collision_free, "either": either,
+                "score": paper_score(either, success, collision_free), "eval_suite": self.suite}
+
+    def close(self) -> None:
+        """Release the worlds' physics clients."""
+        for w in self._worlds.values():
+            w.close()
+        self._worlds.clear()
+
+
+def write_curve(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Write the curve rows atomically (floats with repr precision)."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(CURVE_COLUMNS)
+    for r in rows:
+        writer.writerow([repr(float(r[c])) if isinstance(r[c], float) else str(r[c]) for c in CURVE_COLUMNS])
+    atomic_write_bytes(Path(path), buf.getvalue().encode())
+
+
+def read_curve(path: Path) -> list[dict[str, Any]]:
+    """Rows of a learning_curve.csv (env_steps and episodes as int, shares as float)."""
+    path = Path(path)
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        raise BrlInputError(f"cannot read learning curve {path}: {exc.strerror}") from None
+    out = []
+    try:
+        for r in rows:
+            out.append({"env_steps": int(r["env_steps"]), "episodes": int(r["episodes"]),
+                        **{k: float(r[k]) for k in ("success", "collision_free", "either", "score")},
+                        "eval_suite": r["eval_suite"]})
+    except (KeyError, ValueError, TypeError):
+        raise BrlInputError(f"{path} is not a brl learning curve (columns {', '.join(CURVE_COLUMNS)})") from None
+    return out
+
+
+def steps_to_reach(rows: list[dict[str, Any]], success: float) -> int | None:
+    """The first evaluated env-step count whose success is at least `success` (None if never reached)."""
+    for r in sorted(rows, key=lambda r: r["env_steps"]):
+        if r["success"] >= success - 1e-12:
+            return int(r["env_steps"])
+    return None

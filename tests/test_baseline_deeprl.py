@@ -1,0 +1,153 @@
+"""Deep RL baseline (SB3 DQN): env checks, resumable bit-identical training, the bench policy, learning curves."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import brlcli.baselines.deeprl as drl
+from brlcli.baselines.deeprl import DeepRLConfig, load_model, train_deep_rl
+from brlcli.bench.runner import PolicySpec, run_bench
+from brlcli.bench.suites import build_suite
+from brlcli.curve import CURVE_FILE, read_curve, steps_to_reach, write_curve
+from brlcli.errors import BrlInputError
+from brlcli.report import build_report
+from brlcli.sim.gym_env import DrivingEnv
+
+TINY = {"steps": 240, "eval_every": 120, "eval_suite": "none", "learning_starts": 40, "target_update_interval": 40,
+        "batch_size": 16}
+
+
+def test_env_passes_the_sb3_checker() -> None:
+    from stable_baselines3.common.env_checker import check_env
+
+    env = DrivingEnv()
+    try:
+        check_env(env, warn=True)
+    finally:
+        env.close()
+
+
+class _Stop(Exception):
+    pass
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("dqn") / "run"
+    train_deep_rl(DeepRLConfig(**TINY), out)
+    return out
+
+
+def test_interrupted_training_resumes_bit_identically(trained: Path, tmp_path: Path, monkeypatch) -> None:
+    original = drl._save_checkpoint
+
+    def stop_after_first_chunk(run_dir, model, chunk, curve, wall_s):
+        original(run_dir, model, chunk, curve, wall_s)
+        raise _Stop
+
+    monkeypatch.setattr(drl, "_save_checkpoint", stop_after_first_chunk)
+    with pytest.raises(_Stop):
+        train_deep_rl(DeepRLConfig(**TINY), tmp_path / "b")
+    monkeypatch.setattr(drl, "_save_checkpoint", original)
+    with pytest.raises(BrlInputError, match="--resume"):
+        train_deep_rl(DeepRLConfig(**TINY), tmp_path / "b")
+    summary = train_deep_rl(DeepRLConfig(**TINY), tmp_path / "b", resume=True)["summary"]
+    assert summary["env_steps"] == TINY["steps"]
+    a, meta_a = load_model(trained)
+    b, meta_b = load_model(tmp_path / "b" / "drl.pt")
+    assert meta_a == meta_b and meta_a["env_steps"] == TINY["steps"]
+    for (ka, va), (kb, vb) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
+        assert ka == kb and torch.equal(va, vb)
+    with pytest.raises(BrlInputError, match="another configuration"):
+        train_deep_rl(DeepRLConfig(**{**TINY, "seed": 3}), tmp_path / "b", resume=True)
+
+
+def test_training_moves_the_network_away_from_its_initialisation(trained: Path) -> None:
+    from stable_baselines3 import DQN
+
+    env = DrivingEnv()
+    init = DQN("MlpPolicy", env, policy_kwargs={"net_arch": [64, 64]}, seed=0, device="cpu").q_net.q_net
+    env.close()
+    net, _ = load_model(trained)
+    diffs = [float((p - q).detach().abs().max()) for p, q in zip(net.parameters(), init.parameters(), strict=True)]
+    assert max(diffs) > 1e-4
+
+
+def test_dqn_policy_drives_a_short_route_in_the_bench(trained: Path, tmp_path: Path) -> None:
+    specs = build_suite("paper", weathers="1")[:1]
+    rows = run_bench(specs, [PolicySpec("dqn", "dqn/tiny", {"model": str(trained), "deploy": "gt"})],
+                     tmp_path / "b", {"suite": "paper", "seed": 0})
+    assert len(rows) == 1 and rows[0]["setting"] == "DQN-TGDG" and rows[0]["steps"] > 0
+
+
+def test_bad_model_files_are_refused(tmp_path: Path, trained: Path) -> None:
+    with pytest.raises(BrlInputError, match="does not exist"):
+        load_model(tmp_path / "nothing.pt")
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a torch file")
+    with pytest.raises(BrlInputError, match="not a brl deep RL model"):
+        load_model(junk)
+    doc = torch.load(trained / "drl.pt", weights_only=True)
+    doc["format_version"] = 99
+    buf = io.BytesIO()
+    torch.save(doc, buf)
+    (tmp_path / "v99.pt").write_bytes(buf.getvalue())
+    with pytest.raises(BrlInputError, match="format version 99"):
+        load_model(tmp_path / "v99.pt")
+    with pytest.raises(BrlInputError, match="unknown deep RL algorithm"):
+        DeepRLConfig(algo="a2c")
+    with pytest.raises(BrlInputError, match="multiple of the train frequency"):
+        DeepRLConfig(eval_every=10)
+
+
+def test_learning_curve_written_during_training(tmp_path: Path, monkeypatch) -> None:
+    import brlcli.curve as curve
+
+    two = build_suite("paper", weathers="1")[:2]
+    monkeypatch.setattr(curve, "build_suite", lambda suite: two)
+    out = tmp_path / "c"
+    train_deep_rl(DeepRLConfig(**{**TINY, "eval_suite": "paper"}), out)
+    rows = read_curve(out / CURVE_FILE)
+    assert [r["env_steps"] for r in rows] == [120, 240]
+    assert all(r["episodes"] == 2 and 0.0 <= r["success"] <= 1.0 for r in rows)
+
+
+def _curve_dir(path: Path, algo: str | None, successes: list[float], every: int) -> Path:
+    import json
+
+    path.mkdir(parents=True)
+    cfg = {"input": "gt", **({"algo": algo} if algo else {})}
+    (path / "config.json").write_text(json.dumps({"config": cfg}))
+    write_curve(path / CURVE_FILE, [{"env_steps": every * (k + 1), "episodes": 66, "success": s,
+                                     "collision_free": 1.0, "either": 0.1, "score": 0.5, "eval_suite": "paper"}
+                                    for k, s in enumerate(successes)])
+    return path
+
+
+def test_steps_to_reach_and_the_sample_efficiency_table(tmp_path: Path) -> None:
+    rows = [{"env_steps": 100, "success": 0.2}, {"env_steps": 200, "success": 0.5}, {"env_steps": 300,
+                                                                                    "success": 0.4}]
+    assert steps_to_reach(rows, 0.45) == 200
+    assert steps_to_reach(rows, 0.6) is None
+    brl = tmp_path / "brl"
+    _curve_dir(brl / "seed_0", None, [0.2, 0.4], 500)
+    _curve_dir(brl / "seed_1", None, [0.4, 0.6], 500)
+    dqn = _curve_dir(tmp_path / "dqn", "dqn", [0.1, 0.3, 0.5, 0.45], 5000)
+    results = tmp_path / "res"
+    from tests.test_report import model_set, write_results
+
+    write_results(results, model_set("TGDG"))
+    out = tmp_path / "rep"
+    build_report([results], out=out, formats="csv", curve_dirs=[brl, dqn])
+    with open(out / "tables" / "sample_efficiency.csv", newline="") as fh:
+        table = {r["Learner"]: r for r in csv.DictReader(fh)}
+    assert table["BRL (TG)"]["Final success [%]"] == "50.0000"  # mean of 0.4 and 0.6
+    assert table["BRL (TG)"]["Runs"] == "2"
+    assert table["DQN (TG)"]["Env steps to BRL (TG) final success"] == "15000"
+    assert np.isclose(float(table["DQN (TG)"]["Best mean success [%]"]), 50.0)
