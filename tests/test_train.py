@@ -115,3 +115,18 @@ def test_estimated_input_trains_on_the_shipped_segmentation_net(tmp_path: Path) 
     log_te = (tmp_path / "te" / "log.csv").read_text()
     assert len(log_te.splitlines()) == 31
     assert log_te != (tmp_path / "tg" / "log.csv").read_text()  # the estimated states differ from GT ones
+
+
+def test_learning_curve_evaluations_do_not_change_training(tmp_path: Path, monkeypatch) -> None:
+    import brlcli.curve as curve
+    from brlcli.bench.suites import build_suite
+    from brlcli.curve import read_curve
+
+    two = build_suite("paper", weathers="1")[:2]
+    monkeypatch.setattr(curve, "build_suite", lambda suite: two)
+    train_run(TrainConfig(steps=60, seed=2, evaluate=False), tmp_path / "plain")
+    train_run(TrainConfig(steps=60, seed=2, evaluate=False, curve_every=30), tmp_path / "curve")
+    assert _files(tmp_path / "plain") == _files(tmp_path / "curve")
+    rows = read_curve(tmp_path / "curve" / "learning_curve.csv")
+    assert [r["env_steps"] for r in rows] == [30, 60] and all(r["episodes"] == 2 for r in rows)
+    assert all(0.0 <= r["success"] <= 1.0 and 0.0 <= r["either"] <= 1.0 for r in rows)

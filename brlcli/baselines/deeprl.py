@@ -166,7 +166,9 @@ class DeepRLPolicy:
         from brlcli.curve import StatePolicy
 
         if model is None:
-            raise BrlInputError("--agent dqn needs --model (a brl train-rl run directory or its drl.pt)")
+            from brlcli.models import models_dir
+
+            model = str(models_dir() / "dqn" / "drl.pt")
         if deploy not in ("gt", "estimated"):
             raise BrlInputError(f"--deploy must be gt or estimated, not '{deploy}'")
         net, meta = load_model(model)

@@ -121,9 +121,9 @@ def baseline_specs(agent: str, model: str | None, deploy: str, segnet: str | Non
     if agent == "mp":
         return [("mp", {"deploy": deploy, "segnet": segnet})]
     if agent in ("il", "dqn"):
-        from brlcli.models import models_dir
-
-        path = Path(model) if model else models_dir() / agent
-        name = agent if model is None else f"{agent}/{path.parent.name if path.is_file() else path.name}"
+        if model is None:
+            return [(agent, {"model": None, "deploy": deploy, "segnet": segnet})]
+        path = Path(model)
+        name = f"{agent}/{path.parent.name if path.is_file() else path.name}"
         return [(name, {"model": str(path), "deploy": deploy, "segnet": segnet})]
     raise BrlInputError(f"unknown agent '{agent}'; choose from {', '.join(AGENTS)}")
