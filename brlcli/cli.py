@@ -393,6 +393,54 @@ def train_seg(
     typer.echo(str(out / "segnet.pt"))
 
 
+@app.command("train-il")
+def train_il(
+    data: Annotated[list[str], typer.Option(help="Demonstration bags from brl collect (--every 1 pairs each image "
+                                                 "with its own expert control): bags, directories, globs.")],
+    val: Annotated[list[str] | None, typer.Option(help="Validation bags (default: hold out whole bags of --data).")]
+    = None,
+    val_fraction: Annotated[float, typer.Option(help="Share of --data bags held out when no --val.")] = 0.1,
+    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 5,
+    batch_size: Annotated[int, typer.Option(help="Batch size (>= 4).")] = 64,
+    seed: Annotated[int, typer.Option(help="Seed of initialisation, order, split and augmentation.")] = 0,
+    workers: Annotated[int, typer.Option(help="CPU threads for torch.")] = 2,
+    out: Annotated[Path, typer.Option("--out", help="Run directory (il.pt = best, last.pt, metrics.jsonl).")]
+    = Path("runs/il"),
+    resume: Annotated[bool, typer.Option("--resume", help="Continue from the last finished epoch in --out.")] = False,
+) -> None:
+    """Train the conditional imitation-learning baseline (CIL-style branched CNN) on autopilot demonstrations."""
+    from rich.console import Console
+
+    from brlcli.bags import find_bags
+    from brlcli.baselines.il import ILTrainConfig
+    from brlcli.baselines.il import train_il as run_train_il
+
+    cfg = ILTrainConfig(epochs=epochs, batch_size=batch_size, seed=seed, threads=workers, val_fraction=val_fraction)
+    find_bags(list(data))  # fail early on missing bags
+    if val:
+        find_bags(list(val))
+    if (out / "config.json").exists() and not resume:
+        raise_input(f"{out} already holds an imitation-learning run; pass --resume or choose another --out")
+    console = Console(stderr=True)
+
+    def report(r: dict) -> None:
+        v = r.get("val", {})
+        val_text = f"  val loss {v['loss']:.4f}  steer MAE {v['mae_steer']:.4f}" if v else ""
+        console.print(f"epoch {r['epoch']:3d}/{epochs}  train loss {r['train_loss']:.4f}{val_text}  "
+                      f"({r['wall_s']:.0f} s)")
+
+    try:
+        with console.status("reading bags and training"):
+            result = run_train_il(cfg, list(data), out, val=list(val) if val else None, resume=resume,
+                                  progress=report)
+    except KeyboardInterrupt:
+        console.print(f"interrupted: finished epochs are saved; continue with --resume --out {out}")
+        raise typer.Exit(130) from None
+    console.print(f"{result['train_frames']} training frames, {result['val_frames']} validation frames; best "
+                  f"validation loss {result['best_val_loss']:.4f}")
+    typer.echo(result["model"])
+
+
 @app.command("train-rl")
 def train_rl(
     algo: Annotated[str, typer.Option(help="Deep RL algorithm (Stable-Baselines3): dqn.")] = "dqn",
