@@ -137,6 +137,9 @@ def curve_figure(runs: list[CurveRun]) -> bytes:
         ax.plot(steps, 100 * mean, color=c, lw=2, marker="o", ms=3, label=f"{learner}: mean of {len(group)} runs")
         if len(group) > 1:
             ax.fill_between(steps, 100 * (mean - std), 100 * (mean + std), color=c, alpha=0.2, lw=0)
+    ref = _reference(_groups(runs))
+    if ref is not None:
+        ax.axhline(100 * ref[1], color="black", ls="--", lw=1, label=f"{ref[0]} final mean success")
     ax.set_xscale("log")
     ax.set_xlabel("environment steps (decisions), log scale")
     ax.set_ylabel("paper-suite success [%]")

@@ -114,7 +114,8 @@ def lane_histogram_figure(groups: Sequence[LaneShares], order: Sequence[str]) ->
                        label=f"{100 * FOOTPRINT_THRESHOLD:.0f} % threshold" if edge > 0 else None)
         ax.axvline(0.0, color="gray", lw=0.8)
         in_lane = float(np.mean((g.offroad <= 0) & (g.otherlane <= 0))) * 100.0 if g.offroad.size else 0.0
-        ax.set_yscale("log")
+        if other.size or off.size:  # a log axis needs positive data (a policy may never leave its lane)
+            ax.set_yscale("log")
         ax.set_ylim(0.01, 100.0)
         ax.set_ylabel("share of steps [%]")
         ax.set_title(f"{g.setting}: {g.episodes} episodes, {g.offroad.size} steps; "
