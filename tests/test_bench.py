@@ -112,6 +112,12 @@ def test_bench_cli_runs_and_rejects_bad_input(tmp_path: Path, model: Path) -> No
         ["--model", str(wrong_state)],
         ["--model", str(model), "--shard", "3/2"],
         ["--suite", "corl2017", "--model", str(model), "--episodes", "1", "--out", str(tmp_path / "ok")],
+        ["--agent", "mp", "--model", str(model)],
+        ["--agent", "dqn", "--models", str(model)],
+        ["--agent", "dqn", "--model", str(junk)],
+        ["--agent", "il", "--model", str(tmp_path / "missing.pt")],
+        ["--agent", "mp", "--deploy", "lidar"],
+        ["--agent", "sac"],
     ]
     for args in cases:
         out = [] if "--out" in args else ["--out", str(tmp_path / "bad")]

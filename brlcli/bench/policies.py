@@ -116,6 +116,8 @@ def build_policy(kind: str, name: str, options: dict[str, Any]) -> Any:
 
 def baseline_specs(agent: str, model: str | None, deploy: str, segnet: str | None) -> list[tuple[str, dict]]:
     """(policy name, options) of a baseline agent: mp needs no model; il and dqn take --model or the shipped one."""
+    if agent in ("autopilot", "mp") and model is not None:
+        raise BrlInputError(f"--agent {agent} has no trained model; drop --model")
     if agent == "autopilot":
         return [("autopilot", {})]
     if agent == "mp":
