@@ -30,6 +30,7 @@ from torch import nn
 
 from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
+from brlcli.torchfiles import load_torch_doc, save_torch_doc
 
 DRL_FORMAT = "brl-drl"
 DRL_FORMAT_VERSION = 1
@@ -108,12 +109,9 @@ def q_network(net_arch: tuple[int, ...], state_dim: int, n_actions: int) -> nn.S
 
 def save_model(path: Path, q_net: nn.Module, cfg: DeepRLConfig, env_steps: int) -> None:
     """Write a Q-network file (state dict, architecture, training config) atomically."""
-    doc = {"format": DRL_FORMAT, "format_version": DRL_FORMAT_VERSION, "algo": cfg.algo,
-           "net_arch": list(cfg.net_arch), "state_dim": 30, "n_actions": 4, "env_steps": env_steps,
-           "train": json.dumps(cfg.to_dict(), sort_keys=True), "state_dict": q_net.state_dict()}
-    buf = io.BytesIO()
-    torch.save(doc, buf)
-    atomic_write_bytes(Path(path), buf.getvalue())
+    save_torch_doc(path, DRL_FORMAT, DRL_FORMAT_VERSION, {
+        "algo": cfg.algo, "net_arch": list(cfg.net_arch), "state_dim": 30, "n_actions": 4, "env_steps": env_steps,
+        "train": json.dumps(cfg.to_dict(), sort_keys=True), "state_dict": q_net.state_dict()})
 
 
 def load_model(path: str | Path) -> tuple[nn.Sequential, dict[str, Any]]:
@@ -121,17 +119,7 @@ def load_model(path: str | Path) -> tuple[nn.Sequential, dict[str, Any]]:
     path = Path(path)
     if path.is_dir():
         path = path / "drl.pt"
-    if not path.is_file():
-        raise BrlInputError(f"deep RL model {path} does not exist; train one with brl train-rl")
-    try:
-        doc = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise BrlInputError(f"{path} is not a brl deep RL model ({type(exc).__name__})") from None
-    if not isinstance(doc, dict) or doc.get("format") != DRL_FORMAT:
-        raise BrlInputError(f"{path} is not a brl deep RL model")
-    if doc.get("format_version") != DRL_FORMAT_VERSION:
-        raise BrlInputError(f"deep RL model {path} has format version {doc.get('format_version')}, this brl reads "
-                            f"{DRL_FORMAT_VERSION}")
+    doc = load_torch_doc(path, DRL_FORMAT, DRL_FORMAT_VERSION, "deep RL model", "brl train-rl")
     try:
         net = q_network(tuple(int(h) for h in doc["net_arch"]), int(doc["state_dim"]), int(doc["n_actions"]))
         net.load_state_dict(doc["state_dict"])

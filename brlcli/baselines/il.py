@@ -38,6 +38,7 @@ from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.sim.roadnet import Command
 from brlcli.sim.vehicle import Control
+from brlcli.torchfiles import load_torch_doc, save_torch_doc
 
 IL_FORMAT = "brl-il"
 IL_FORMAT_VERSION = 1
@@ -145,33 +146,15 @@ def select_branch(outputs: torch.Tensor, branch: torch.Tensor) -> torch.Tensor:
 
 def save_il(path: Path, net: ILNet, extra: dict[str, Any]) -> None:
     """Write weights, architecture and `extra` (plain data and tensors only) atomically."""
-    import io
-
-    doc = {"format": IL_FORMAT, "format_version": IL_FORMAT_VERSION, "arch": net.cfg.to_dict(),
-           "branches": list(BRANCH_NAMES), "outputs": list(OUTPUT_NAMES), "state_dict": net.state_dict(),
-           "extra": extra}
-    buf = io.BytesIO()
-    torch.save(doc, buf)
-    atomic_write_bytes(Path(path), buf.getvalue())
+    save_torch_doc(path, IL_FORMAT, IL_FORMAT_VERSION, {"arch": net.cfg.to_dict(), "branches": list(BRANCH_NAMES),
+                                                       "outputs": list(OUTPUT_NAMES), "state_dict": net.state_dict(),
+                                                       "extra": extra})
 
 
 def load_il_checkpoint(path: Path) -> dict[str, Any]:
     """Read an IL model file (never unpickling objects) and check its format and version."""
-    path = Path(path)
-    if not path.is_file():
-        raise BrlInputError(f"IL model {path} does not exist; train one with brl train-il")
-    try:
-        doc = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise BrlInputError(f"{path} is not a brl IL model ({type(exc).__name__})") from None
-    if not isinstance(doc, dict) or doc.get("format") != IL_FORMAT:
-        raise BrlInputError(f"{path} is not a brl IL model")
-    if doc.get("format_version") != IL_FORMAT_VERSION:
-        raise BrlInputError(f"IL model {path} has format version {doc.get('format_version')}, "
-                            f"this brl reads {IL_FORMAT_VERSION}")
-    for key in ("arch", "state_dict", "extra", "branches", "outputs"):
-        if key not in doc:
-            raise BrlInputError(f"IL model {path} lacks '{key}'")
+    doc = load_torch_doc(path, IL_FORMAT, IL_FORMAT_VERSION, "IL model", "brl train-il",
+                         ("arch", "state_dict", "extra", "branches", "outputs"))
     if list(doc["branches"]) != list(BRANCH_NAMES) or list(doc["outputs"]) != list(OUTPUT_NAMES):
         raise BrlInputError(f"IL model {path} has other branches or outputs than brl's CIL net")
     return doc

@@ -2,16 +2,13 @@
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from brlcli.errors import BrlInputError
-from brlcli.provenance import atomic_write_bytes
 from brlcli.segnet.model import SegNet, SegNetConfig
 from brlcli.sim.classes import CarlaClass
+from brlcli.torchfiles import load_torch_doc, save_torch_doc
 
 SEGNET_FORMAT = "brl-segnet"
 SEGNET_FORMAT_VERSION = 1
@@ -20,30 +17,14 @@ CLASS_NAMES = [c.name.lower() for c in CarlaClass]
 
 def save_checkpoint(path: Path, net: SegNet, extra: dict[str, Any]) -> None:
     """Write weights, architecture, classes and `extra` (plain data and tensors only) atomically."""
-    doc = {"format": SEGNET_FORMAT, "format_version": SEGNET_FORMAT_VERSION, "classes": CLASS_NAMES,
-           "arch": net.cfg.to_dict(), "state_dict": net.state_dict(), "extra": extra}
-    buf = io.BytesIO()
-    torch.save(doc, buf)
-    atomic_write_bytes(Path(path), buf.getvalue())
+    save_torch_doc(path, SEGNET_FORMAT, SEGNET_FORMAT_VERSION, {"classes": CLASS_NAMES, "arch": net.cfg.to_dict(),
+                                                               "state_dict": net.state_dict(), "extra": extra})
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:
     """Read a segmentation-net file (never unpickling objects) and check its format and version."""
-    path = Path(path)
-    if not path.is_file():
-        raise BrlInputError(f"segmentation net {path} does not exist; train one with brl train-seg")
-    try:
-        doc = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise BrlInputError(f"{path} is not a brl segmentation net ({type(exc).__name__})") from None
-    if not isinstance(doc, dict) or doc.get("format") != SEGNET_FORMAT:
-        raise BrlInputError(f"{path} is not a brl segmentation net")
-    if doc.get("format_version") != SEGNET_FORMAT_VERSION:
-        raise BrlInputError(f"segmentation net {path} has format version {doc.get('format_version')}, "
-                            f"this brl reads {SEGNET_FORMAT_VERSION}")
-    for key in ("classes", "arch", "state_dict", "extra"):
-        if key not in doc:
-            raise BrlInputError(f"segmentation net {path} lacks '{key}'")
+    doc = load_torch_doc(path, SEGNET_FORMAT, SEGNET_FORMAT_VERSION, "segmentation net", "brl train-seg",
+                         ("classes", "arch", "state_dict", "extra"))
     if list(doc["classes"]) != CLASS_NAMES:
         raise BrlInputError(f"segmentation net {path} predicts other classes than CARLA's 13")
     return doc
