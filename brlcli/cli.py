@@ -462,7 +462,7 @@ def train_rl(
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from brlcli.baselines.deeprl import DeepRLConfig, train_deep_rl
+    from brlcli.baselines.deeprl import DeepRLConfig, check_run_dir, train_deep_rl
     from brlcli.sim.town import load_town
     from brlcli.sim.weather import get_weather
 
@@ -478,6 +478,7 @@ def train_rl(
         from brlcli.segnet.infer import load_labeler
 
         load_labeler(segnet)
+    check_run_dir(cfg, out, resume)
     console = Console(stderr=True)
     columns = (TextColumn(f"{algo}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("episodes {task.fields[eps]}  epsilon {task.fields[expl]:.2f}  paper success "

@@ -151,3 +151,23 @@ def test_steps_to_reach_and_the_sample_efficiency_table(tmp_path: Path) -> None:
     assert table["BRL (TG)"]["Runs"] == "2"
     assert table["DQN (TG)"]["Env steps to BRL (TG) final success"] == "15000"
     assert np.isclose(float(table["DQN (TG)"]["Best mean success [%]"]), 50.0)
+
+
+def test_cli_trains_refuses_to_overwrite_and_rejects_bad_options(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    def brl(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "brlcli.cli", *args], capture_output=True, text=True, timeout=300)
+
+    out = tmp_path / "dqn"
+    args = ("train-rl", "--steps", "40", "--eval-every", "20", "--eval-suite", "none", "--out", str(out))
+    done = brl(*args)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().endswith("drl.pt") and load_model(out)[1]["env_steps"] == 40
+    for bad in (args, ("train-rl", "--algo", "ppo", "--out", str(tmp_path / "x")),
+                ("train-rl", "--eval-every", "10", "--out", str(tmp_path / "x")),
+                ("train-rl", "--weather", "Blizzard", "--out", str(tmp_path / "x"))):
+        r = brl(*bad)
+        assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "x").exists()

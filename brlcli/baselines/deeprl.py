@@ -266,6 +266,20 @@ def _load_checkpoint(run_dir: Path, model: Any) -> dict[str, Any] | None:
     return state
 
 
+def check_run_dir(cfg: DeepRLConfig, run_dir: Path, resume: bool) -> None:
+    """Refuse to overwrite a run, or to resume one made with other options."""
+    config_path = Path(run_dir) / "config.json"
+    if config_path.exists():
+        if not resume:
+            raise BrlInputError(f"{run_dir} already holds a deep RL run; pass --resume or choose another --out")
+        try:
+            saved = json.loads(config_path.read_text())["config"]
+        except (json.JSONDecodeError, KeyError, TypeError):
+            raise BrlInputError(f"{config_path} is not a brl deep RL configuration") from None
+        if DeepRLConfig.from_dict(saved).to_dict() != cfg.to_dict():
+            raise BrlInputError(f"{run_dir} holds a run with another configuration; resume it with the same options")
+
+
 def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
                   progress: Callable[[DeepRLProgress], None] | None = None) -> dict[str, Any]:
     """Train the deep RL baseline for `cfg.steps` env steps, evaluating every `cfg.eval_every`; resumable."""
@@ -276,12 +290,7 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
 
     run_dir = Path(run_dir)
     config_path = run_dir / "config.json"
-    if config_path.exists():
-        if not resume:
-            raise BrlInputError(f"{run_dir} already holds a deep RL run; pass --resume or choose another --out")
-        saved = json.loads(config_path.read_text())["config"]
-        if DeepRLConfig.from_dict(saved).to_dict() != cfg.to_dict():
-            raise BrlInputError(f"{run_dir} holds a run with another configuration; resume it with the same options")
+    check_run_dir(cfg, run_dir, resume)
     if (run_dir / "summary.json").exists():
         return json.loads((run_dir / "summary.json").read_text())
     run_dir.mkdir(parents=True, exist_ok=True)
