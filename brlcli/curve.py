@@ -10,45 +10,18 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from brlcli.bench.metrics import paper_score
-from brlcli.bench.runner import Observation, run_episode
+from brlcli.bench.runner import run_episode
 from brlcli.bench.suites import EpisodeSpec, build_suite
 from brlcli.errors import BrlInputError
-from brlcli.features import state_vector
 from brlcli.provenance import atomic_write_bytes
-from brlcli.sim.gym_env import ACTIONS, FRAMES_PER_DECISION
-from brlcli.sim.vehicle import Control
 from brlcli.sim.world import World
 
 CURVE_FILE = "learning_curve.csv"
 CURVE_COLUMNS = ("env_steps", "episodes", "success", "collision_free", "either", "score", "eval_suite")
-
-
-class StatePolicy:
-    """A bench policy from any greedy function of the 30-number state (BRL agent, DQN network)."""
-
-    frames_per_decision = FRAMES_PER_DECISION
-
-    def __init__(self, name: str, setting: str, act: Callable[[np.ndarray], int],
-                 labeler: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
-        self.name = name
-        self.setting = setting
-        self.act = act
-        self.labeler = labeler
-
-    def reset(self, spec: EpisodeSpec, world: Any) -> None:
-        """Greedy state policy: nothing to reset."""
-
-    def decide(self, obs: Observation) -> Control:
-        """The action primitive chosen on the (ground-truth or estimated) label image's state."""
-        labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
-        return ACTIONS[int(self.act(state_vector(labels)))]
 
 
 class SuiteEvaluator:

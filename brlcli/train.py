@@ -25,6 +25,7 @@ from brlcli.agent import BayesianAgent, BRLParams
 from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.reward import RewardParams
+from brlcli.segnet import check_input_source, labeler_for
 from brlcli.sim.gym_env import ACTION_NAMES, DrivingEnv
 from brlcli.sim.weather import get_weather
 
@@ -54,8 +55,7 @@ class TrainConfig:
     curve_every: int = 0  # evaluate greedily on the paper suite every N steps (learning_curve.csv); 0 = never
 
     def __post_init__(self) -> None:
-        if self.input not in ("gt", "estimated"):
-            raise BrlInputError(f"--input must be gt or estimated, not '{self.input}'")
+        check_input_source(self.input, "--input")
         if self.steps < 1:
             raise BrlInputError("--steps must be at least 1")
         if self.curve_every < 0:
@@ -112,11 +112,7 @@ def check_inputs(cfg: TrainConfig) -> None:
 
 
 def _labeler(cfg: TrainConfig) -> Callable[[np.ndarray], np.ndarray] | None:
-    if cfg.input != "estimated":
-        return None
-    from brlcli.segnet.infer import load_labeler
-
-    return load_labeler(cfg.segnet)
+    return labeler_for(cfg.input, cfg.segnet, "--input")
 
 
 def _make_env(cfg: TrainConfig) -> DrivingEnv:
@@ -181,12 +177,11 @@ class _Curve:
         self.eval_s = 0.0
 
     def evaluate(self, agent: BayesianAgent, step: int) -> None:
-        from brlcli.curve import StatePolicy, write_curve
+        from brlcli.bench.policies import StatePolicy, greedy_brl
+        from brlcli.curve import write_curve
 
         t0 = time.perf_counter()
-        rng = np.random.default_rng(0)  # greedy acting; never the training generator
-        policy = StatePolicy("brl", self.setting, lambda s: agent.act(s.astype(np.float64), rng, greedy=True),
-                             self.labeler)
+        policy = StatePolicy("brl", self.setting, greedy_brl(agent), self.labeler)  # never the training generator
         self.rows.append({"env_steps": step, **self.evaluator.evaluate(policy)})
         write_curve(self.path, self.rows)
         self.eval_s += time.perf_counter() - t0

@@ -47,18 +47,22 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_interrupted_training_resumes_bit_identically(trained: Path, tmp_path: Path, monkeypatch) -> None:
     original = drl._save_checkpoint
 
-    def stop_after_first_chunk(run_dir, model, chunk, curve, wall_s):
-        original(run_dir, model, chunk, curve, wall_s)
+    def stop_after_first_chunk(run_dir, model, chunk, *args):
+        original(run_dir, model, chunk, *args)
         raise _Stop
 
     monkeypatch.setattr(drl, "_save_checkpoint", stop_after_first_chunk)
     with pytest.raises(_Stop):
         train_deep_rl(DeepRLConfig(**TINY), tmp_path / "b")
     monkeypatch.setattr(drl, "_save_checkpoint", original)
+    assert sorted(p.name for p in (tmp_path / "b" / "checkpoint").iterdir()) == [
+        "networks_00001.pt", "replay_00001.npz", "state.json"]
     with pytest.raises(BrlInputError, match="--resume"):
         train_deep_rl(DeepRLConfig(**TINY), tmp_path / "b")
     summary = train_deep_rl(DeepRLConfig(**TINY), tmp_path / "b", resume=True)["summary"]
     assert summary["env_steps"] == TINY["steps"]
+    assert sorted(p.name for p in (tmp_path / "b" / "checkpoint").iterdir()) == [
+        "networks_00002.pt", "replay_00002.npz", "state.json"]  # older chunks' files are gone
     a, meta_a = load_model(trained)
     b, meta_b = load_model(tmp_path / "b" / "drl.pt")
     assert meta_a == meta_b and meta_a["env_steps"] == TINY["steps"]

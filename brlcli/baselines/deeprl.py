@@ -10,7 +10,7 @@ Run directory:
     learning_curve.csv   paper-suite success etc. after every chunk (env steps = decisions)
     drl.pt               the Q-network of the last finished chunk (torch, weights_only, format-versioned)
     checkpoint/          Q and target networks, optimizer, replay buffer (npz), counters: the resume point
-    summary.json         at the end: steps, wall time, final evaluation
+    summary.json         at the end: steps, wall and evaluation time, learning steps/s, final evaluation
 SB3's own save/load (which unpickles) is never used: networks are written as plain state dicts.
 """
 
@@ -28,8 +28,12 @@ import numpy as np
 import torch
 from torch import nn
 
+from brlcli.bench.policies import StatePolicy, setting_name
 from brlcli.errors import BrlInputError
+from brlcli.features import STATE_DIM
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
+from brlcli.segnet import check_input_source, labeler_for
+from brlcli.sim.gym_env import ACTIONS
 from brlcli.torchfiles import load_torch_doc, save_torch_doc
 
 DRL_FORMAT = "brl-drl"
@@ -66,8 +70,7 @@ class DeepRLConfig:
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
             raise BrlInputError(f"unknown deep RL algorithm '{self.algo}'; choose from {', '.join(ALGOS)}")
-        if self.input not in ("gt", "estimated"):
-            raise BrlInputError(f"--input must be gt or estimated, not '{self.input}'")
+        check_input_source(self.input, "--input")
         if self.steps < 1 or self.eval_every < 1:
             raise BrlInputError("--steps and --eval-every must be at least 1")
         if self.eval_every % self.train_freq:
@@ -110,8 +113,8 @@ def q_network(net_arch: tuple[int, ...], state_dim: int, n_actions: int) -> nn.S
 def save_model(path: Path, q_net: nn.Module, cfg: DeepRLConfig, env_steps: int) -> None:
     """Write a Q-network file (state dict, architecture, training config) atomically."""
     save_torch_doc(path, DRL_FORMAT, DRL_FORMAT_VERSION, {
-        "algo": cfg.algo, "net_arch": list(cfg.net_arch), "state_dim": 30, "n_actions": 4, "env_steps": env_steps,
-        "train": json.dumps(cfg.to_dict(), sort_keys=True), "state_dict": q_net.state_dict()})
+        "algo": cfg.algo, "net_arch": list(cfg.net_arch), "state_dim": STATE_DIM, "n_actions": len(ACTIONS),
+        "env_steps": env_steps, "train": json.dumps(cfg.to_dict(), sort_keys=True), "state_dict": q_net.state_dict()})
 
 
 def load_model(path: str | Path) -> tuple[nn.Sequential, dict[str, Any]]:
@@ -121,15 +124,16 @@ def load_model(path: str | Path) -> tuple[nn.Sequential, dict[str, Any]]:
         path = path / "drl.pt"
     doc = load_torch_doc(path, DRL_FORMAT, DRL_FORMAT_VERSION, "deep RL model", "brl train-rl")
     try:
-        net = q_network(tuple(int(h) for h in doc["net_arch"]), int(doc["state_dim"]), int(doc["n_actions"]))
+        state_dim, n_actions = int(doc["state_dim"]), int(doc["n_actions"])
+        if state_dim != STATE_DIM or n_actions != len(ACTIONS):
+            raise BrlInputError(f"deep RL model {path} has state size {state_dim} and {n_actions} actions; brl's "
+                                f"task uses {STATE_DIM} and {len(ACTIONS)}")
+        net = q_network(tuple(int(h) for h in doc["net_arch"]), state_dim, n_actions)
         net.load_state_dict(doc["state_dict"])
-        train = json.loads(doc["train"])
+        meta = {"algo": str(doc["algo"]), "env_steps": int(doc["env_steps"]), "train": json.loads(doc["train"])}
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise BrlInputError(f"deep RL model {path} is damaged: {exc}".splitlines()[0]) from None
-    if int(doc["state_dim"]) != 30 or int(doc["n_actions"]) != 4:
-        raise BrlInputError(f"deep RL model {path} has state size {doc['state_dim']} and {doc['n_actions']} actions; "
-                            "brl's task uses 30 and 4")
-    return net.eval(), {"algo": doc["algo"], "env_steps": int(doc["env_steps"]), "train": train}
+    return net.eval(), meta
 
 
 def greedy_action_fn(net: nn.Module) -> Callable[[np.ndarray], int]:
@@ -143,39 +147,19 @@ def greedy_action_fn(net: nn.Module) -> Callable[[np.ndarray], int]:
     return act
 
 
-class DeepRLPolicy:
+class DeepRLPolicy(StatePolicy):
     """A trained DQN deployed greedily on GT or estimated labels (decision every 7 frames), for `brl bench`."""
-
-    needs_camera = True
 
     def __init__(self, name: str = "dqn", model: str | None = None, deploy: str = "gt",
                  segnet: str | None = None) -> None:
-        from brlcli.bench.policies import setting_name
-        from brlcli.curve import StatePolicy
-
+        check_input_source(deploy)
         if model is None:
             from brlcli.models import models_dir
 
             model = str(models_dir() / "dqn" / "drl.pt")
-        if deploy not in ("gt", "estimated"):
-            raise BrlInputError(f"--deploy must be gt or estimated, not '{deploy}'")
         net, meta = load_model(model)
-        labeler = None
-        if deploy == "estimated":
-            from brlcli.segnet.infer import load_labeler
-
-            labeler = load_labeler(segnet)
         setting = f"{meta['algo'].upper()}-{setting_name(meta['train'].get('input', 'gt'), deploy)}"
-        self._inner = StatePolicy(name, setting, greedy_action_fn(net), labeler)
-        self.name, self.setting = name, setting
-        self.frames_per_decision = self._inner.frames_per_decision
-
-    def reset(self, spec: Any, world: Any) -> None:
-        """Greedy policy: nothing to reset."""
-
-    def decide(self, obs: Any) -> Any:
-        """Greedy action on the state of the (GT or estimated) label image."""
-        return self._inner.decide(obs)
+        super().__init__(name, setting, greedy_action_fn(net), labeler_for(deploy, segnet))
 
 
 @dataclass
@@ -198,13 +182,9 @@ def _make_env(cfg: DeepRLConfig) -> Any:
     from brlcli.reward import RewardParams
     from brlcli.sim.gym_env import DrivingEnv
 
-    labeler = None
-    if cfg.input == "estimated":
-        from brlcli.segnet.infer import load_labeler
-
-        labeler = load_labeler(cfg.segnet)
     return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training",
-                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh), labeler=labeler)
+                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh),
+                      labeler=labeler_for(cfg.input, cfg.segnet, "--input"))
 
 
 def _build_dqn(cfg: DeepRLConfig, env: Any) -> Any:
@@ -220,20 +200,28 @@ def _build_dqn(cfg: DeepRLConfig, env: Any) -> Any:
 _BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
 
 
-def _save_checkpoint(run_dir: Path, model: Any, chunk: int, curve: list[dict], wall_s: float) -> None:
+def _save_checkpoint(run_dir: Path, model: Any, chunk: int, curve: list[dict], wall_s: float,
+                     eval_s: float) -> None:
+    """Networks and replay buffer under chunk-numbered names, then state.json (the commit point) naming them;
+    files of older chunks are removed last, so a kill at any moment leaves a consistent checkpoint."""
     from brlcli.npzio import save_npz
 
     ckpt = run_dir / "checkpoint"
+    nets, replay = f"networks_{chunk:05d}.pt", f"replay_{chunk:05d}.npz"
     buf = io.BytesIO()
     torch.save({"q_net": model.q_net.state_dict(), "q_net_target": model.q_net_target.state_dict(),
                 "optimizer": model.policy.optimizer.state_dict()}, buf)
-    atomic_write_bytes(ckpt / "networks.pt", buf.getvalue())
+    atomic_write_bytes(ckpt / nets, buf.getvalue())
     rb = model.replay_buffer
-    save_npz(ckpt / "replay.npz", {k: getattr(rb, k) for k in _BUFFER_ARRAYS}, compress=True)
+    save_npz(ckpt / replay, {k: getattr(rb, k) for k in _BUFFER_ARRAYS}, compress=True)
     atomic_write_json(ckpt / "state.json", {
-        "version": CHECKPOINT_VERSION, "chunk": chunk, "num_timesteps": int(model.num_timesteps),
-        "n_calls": int(model._n_calls), "n_updates": int(model._n_updates), "episode_num": int(model._episode_num),
-        "buffer_pos": int(rb.pos), "buffer_full": bool(rb.full), "curve": curve, "wall_s": wall_s})
+        "version": CHECKPOINT_VERSION, "chunk": chunk, "networks": nets, "replay": replay,
+        "num_timesteps": int(model.num_timesteps), "n_calls": int(model._n_calls), "n_updates": int(model._n_updates),
+        "episode_num": int(model._episode_num), "buffer_pos": int(rb.pos), "buffer_full": bool(rb.full),
+        "curve": curve, "wall_s": wall_s, "eval_s": eval_s})
+    for old in ckpt.iterdir():
+        if old.name not in (nets, replay, "state.json") and old.suffix in (".pt", ".npz"):
+            old.unlink(missing_ok=True)
 
 
 def _load_checkpoint(run_dir: Path, model: Any) -> dict[str, Any] | None:
@@ -245,11 +233,11 @@ def _load_checkpoint(run_dir: Path, model: Any) -> dict[str, Any] | None:
         if state.get("version") != CHECKPOINT_VERSION:
             raise BrlInputError(f"checkpoint {ckpt} has version {state.get('version')}, this brl reads "
                                 f"{CHECKPOINT_VERSION}")
-        nets = torch.load(ckpt / "networks.pt", map_location="cpu", weights_only=True)
+        nets = torch.load(ckpt / state["networks"], map_location="cpu", weights_only=True)
         model.q_net.load_state_dict(nets["q_net"])
         model.q_net_target.load_state_dict(nets["q_net_target"])
         model.policy.optimizer.load_state_dict(nets["optimizer"])
-        with np.load(ckpt / "replay.npz", allow_pickle=False) as z:
+        with np.load(ckpt / state["replay"], allow_pickle=False) as z:
             for k in _BUFFER_ARRAYS:
                 getattr(model.replay_buffer, k)[...] = z[k]
     except BrlInputError:
@@ -285,8 +273,7 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
     """Train the deep RL baseline for `cfg.steps` env steps, evaluating every `cfg.eval_every`; resumable."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from brlcli.bench.policies import setting_name
-    from brlcli.curve import CURVE_FILE, StatePolicy, SuiteEvaluator, write_curve
+    from brlcli.curve import CURVE_FILE, SuiteEvaluator, write_curve
 
     run_dir = Path(run_dir)
     config_path = run_dir / "config.json"
@@ -302,6 +289,7 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
     chunk = state["chunk"] if state else 0
     curve: list[dict] = state["curve"] if state else []
     wall0 = state["wall_s"] if state else 0.0
+    eval_s = state["eval_s"] if state else 0.0
     t0 = time.perf_counter()
     evaluator = SuiteEvaluator(cfg.eval_suite) if cfg.eval_suite != "none" else None
     setting = f"{cfg.algo.upper()}-{setting_name(cfg.input, cfg.input)}"
@@ -327,10 +315,12 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
             q_net = model.q_net.q_net
             save_model(run_dir / "drl.pt", q_net, cfg, int(model.num_timesteps))
             if evaluator is not None:
+                t_eval = time.perf_counter()
                 pol = StatePolicy("dqn", setting, greedy_action_fn(q_net), env.labeler)
                 curve.append({"env_steps": int(model.num_timesteps), **evaluator.evaluate(pol)})
                 write_curve(run_dir / CURVE_FILE, curve)
-            _save_checkpoint(run_dir, model, chunk, curve, wall0 + time.perf_counter() - t0)
+                eval_s += time.perf_counter() - t_eval
+            _save_checkpoint(run_dir, model, chunk, curve, wall0 + time.perf_counter() - t0, eval_s)
             if progress:
                 progress(DeepRLProgress(int(model.num_timesteps), cfg.steps, model._episode_num,
                                         float(model.exploration_rate), curve[-1]["success"] if curve else None))
@@ -339,8 +329,9 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
         if evaluator is not None:
             evaluator.close()
     wall = wall0 + time.perf_counter() - t0
+    learn_s = wall - eval_s
     summary = {"env_steps": int(model.num_timesteps), "episodes": int(model._episode_num), "wall_s": wall,
-               "steps_per_s": model.num_timesteps / wall if wall > 0 else float("nan"),
+               "eval_s": eval_s, "steps_per_s": model.num_timesteps / learn_s if learn_s > 0 else float("nan"),
                "final_eval": curve[-1] if curve else None, "setting": setting}
     atomic_write_json(run_dir / "summary.json", {**provenance(cfg.to_dict()), "summary": summary})
     if progress:

@@ -36,6 +36,7 @@ from torch import nn
 
 from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
+from brlcli.segnet import check_input_source
 from brlcli.sim.roadnet import Command
 from brlcli.sim.vehicle import Control
 from brlcli.torchfiles import load_torch_doc, save_torch_doc
@@ -453,8 +454,7 @@ class ILPolicy:
 
     def __init__(self, name: str = "il", model: str | None = None, deploy: str = "gt",
                  segnet: str | None = None) -> None:
-        if deploy not in ("gt", "estimated"):
-            raise BrlInputError(f"--deploy must be gt or estimated, not '{deploy}'")
+        check_input_source(deploy)
         self.name = name
         path = Path(model) if model else default_il_path()
         if path.is_dir():

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from brlcli.bench.suites import EpisodeSpec
-from brlcli.errors import BrlInputError
+from brlcli.segnet import labeler_for
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.classes import CarlaClass
 from brlcli.sim.roadnet import Command
@@ -138,9 +138,13 @@ class LaneEstimate:
 
     def y_at(self, x_m: float) -> float:
         """Lane-centre lateral offset at `x_m` (0 without a fit)."""
+        return float(self.ys_at(np.asarray(x_m)))
+
+    def ys_at(self, xs_m: np.ndarray) -> np.ndarray:
+        """Lane-centre lateral offsets at many `xs_m` (zeros without a fit)."""
         if self.coef is None:
-            return 0.0
-        return float(self.coef[0] + self.coef[1] * x_m + self.coef[2] * x_m * x_m)
+            return np.zeros(np.shape(xs_m))
+        return self.coef[0] + self.coef[1] * xs_m + self.coef[2] * xs_m * xs_m
 
 
 def find_lane_start(grid: np.ndarray, xs_m: np.ndarray, ys_m: np.ndarray, hint_m: float = 0.0,
@@ -289,16 +293,10 @@ class ModularPipelinePolicy:
     needs_camera = True
 
     def __init__(self, name: str = "mp", deploy: str = "gt", segnet: str | None = None) -> None:
-        if deploy not in ("gt", "estimated"):
-            raise BrlInputError(f"--deploy must be gt or estimated, not '{deploy}'")
+        self.labeler = labeler_for(deploy, segnet)
         self.name = name
         self.deploy = deploy
         self.setting = "MP-DG" if deploy == "gt" else "MP-DE"
-        self.labeler: Any = None
-        if deploy == "estimated":
-            from brlcli.segnet.infer import load_labeler
-
-            self.labeler = load_labeler(segnet)
         self.bev: BirdsEye | None = None
         self._reset_state()
 
@@ -313,7 +311,6 @@ class ModularPipelinePolicy:
         self.speed_int = 0.0
         self.lane: LaneEstimate | None = None
         self.lane_lost_frames = 0
-        self.debug: dict[str, Any] = {}
 
     def reset(self, spec: EpisodeSpec, world: Any) -> None:
         """New episode: take the camera configuration (nothing else) from the world and clear the planner."""
@@ -459,7 +456,7 @@ class ModularPipelinePolicy:
             else:
                 steer, curv = 0.0, 0.0
             xs = np.arange(2.0, 16.0, 0.5)
-            path_car = np.stack([xs, np.array([lane.y_at(x) for x in xs])], 1)
+            path_car = np.stack([xs, lane.ys_at(xs)], 1)
             target_kmh = CURVE_KMH if curv > 0.02 or lane.coef is None else CRUISE_KMH
             if command == Command.REACH_GOAL:
                 target_kmh = TURN_KMH
@@ -470,7 +467,6 @@ class ModularPipelinePolicy:
             target_kmh = min(target_kmh, TURN_KMH * (gap - STOP_GAP_M) / (SLOW_GAP_M - STOP_GAP_M) + 3.0)
         control = Control(steer=steer, **self._speed_control(target_kmh, speed_kmh))
         self.last_control = control
-        self.debug = {"lane": lane, "gap_m": gap, "target_kmh": target_kmh, "entry_m": self.entry_m}
         return control
 
     def _speed_control(self, target_kmh: float, speed_kmh: float) -> dict[str, float]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ from brlcli.bench.runner import Observation
 from brlcli.bench.suites import EpisodeSpec
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM, state_vector
+from brlcli.segnet import check_input_source, labeler_for
 from brlcli.sim.gym_env import ACTIONS, FRAMES_PER_DECISION
 from brlcli.sim.vehicle import Control
 
@@ -33,36 +35,47 @@ def setting_name(train_input: str, deploy_input: str) -> str:
     return f"T{code[train_input]}D{code[deploy_input]}"
 
 
-class BRLPolicy:
-    """A trained Bayesian RL model deployed greedily on GT or estimated labels (decision every 7 frames)."""
+class StatePolicy:
+    """A bench policy from any greedy function of the 30-number state (BRL agent, DQN network), decided every 7
+    frames on the ground-truth labels or, with a `labeler`, on the segmentation net's labels of the RGB image."""
 
     frames_per_decision = FRAMES_PER_DECISION
+
+    def __init__(self, name: str, setting: str, act: Callable[[np.ndarray], int],
+                 labeler: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+        self.name = name
+        self.setting = setting
+        self.act = act
+        self.labeler = labeler
+
+    def reset(self, spec: EpisodeSpec, world: Any) -> None:
+        """Greedy state policy: nothing to reset."""
+
+    def decide(self, obs: Observation) -> Control:
+        """The action primitive chosen on the (ground-truth or estimated) label image's state."""
+        labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
+        return ACTIONS[int(self.act(state_vector(labels)))]
+
+
+def greedy_brl(agent: Any) -> Callable[[np.ndarray], int]:
+    """state -> the BRL agent's greedy action (greedy acting never draws from the generator)."""
+    rng = np.random.default_rng(0)
+    return lambda state: agent.act(np.asarray(state, dtype=np.float64), rng, greedy=True)
+
+
+class BRLPolicy(StatePolicy):
+    """A trained Bayesian RL model deployed greedily on GT or estimated labels (decision every 7 frames)."""
 
     def __init__(self, name: str, model: str, deploy: str = "gt", segnet: str | None = None) -> None:
         from brlcli.agent import BayesianAgent
 
-        self.name = name
+        check_input_source(deploy)
         self.agent = BayesianAgent.load(model)
         if self.agent.state_dim != STATE_DIM or self.agent.n_actions != len(ACTIONS):
             raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and "
                                 f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)}")
-        if deploy not in ("gt", "estimated"):
-            raise BrlInputError(f"--deploy must be gt or estimated, not '{deploy}'")
-        self.setting = setting_name(model_training_input(Path(model)), deploy)
-        self.labeler = None
-        if deploy == "estimated":
-            from brlcli.segnet.infer import load_labeler
-
-            self.labeler = load_labeler(segnet)
-        self._rng = np.random.default_rng(0)
-
-    def reset(self, spec: EpisodeSpec, world: Any) -> None:
-        """Greedy policy: nothing to reset."""
-
-    def decide(self, obs: Observation) -> Control:
-        """Greedy action on the state of the (ground-truth or estimated) label image."""
-        labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
-        return ACTIONS[self.agent.act(state_vector(labels), self._rng, greedy=True)]
+        super().__init__(name, setting_name(model_training_input(Path(model)), deploy), greedy_brl(self.agent),
+                         labeler_for(deploy, segnet))
 
 
 class AutopilotPolicy:
