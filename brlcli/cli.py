@@ -231,10 +231,10 @@ def bench(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    from brlcli.bench.policies import baseline_specs, build_policy
-    from brlcli.bench.runner import PolicySpec, find_models, prepare, run_bench, suite_version, town_versions
+    from brlcli.bench.runner import find_models, prepare, run_bench, suite_version, town_versions
     from brlcli.bench.suites import build_suite, parse_shard, subset
     from brlcli.bench.suites import shard as take_shard
+    from brlcli.policy import PolicySpec, baseline_specs, build_policy
 
     if workers < 1:
         raise_input("--workers must be at least 1")

@@ -177,8 +177,8 @@ class _Curve:
         self.eval_s = 0.0
 
     def evaluate(self, agent: BayesianAgent, step: int) -> None:
-        from brlcli.bench.policies import StatePolicy, greedy_brl
         from brlcli.curve import write_curve
+        from brlcli.policy import StatePolicy, greedy_brl
 
         t0 = time.perf_counter()
         policy = StatePolicy("brl", self.setting, greedy_brl(agent), self.labeler)  # never the training generator

@@ -12,10 +12,11 @@ import torch
 
 import brlcli.baselines.deeprl as drl
 from brlcli.baselines.deeprl import DeepRLConfig, load_model, train_deep_rl
-from brlcli.bench.runner import PolicySpec, run_bench
+from brlcli.bench.runner import run_bench
 from brlcli.bench.suites import build_suite
 from brlcli.curve import CURVE_FILE, read_curve, steps_to_reach, write_curve
 from brlcli.errors import BrlInputError
+from brlcli.policy import PolicySpec
 from brlcli.report import build_report
 from brlcli.sim.gym_env import DrivingEnv
 

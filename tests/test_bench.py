@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from brlcli.agent import BayesianAgent
-from brlcli.bench.runner import PolicySpec, read_results, run_bench
+from brlcli.bench.runner import read_results, run_bench
 from brlcli.bench.suites import build_suite, parse_shard, shard, subset
 from brlcli.errors import BrlInputError
+from brlcli.policy import PolicySpec
 from brlcli.train import TrainConfig, train_run
 
 

@@ -28,9 +28,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from brlcli.bench.policies import StatePolicy, setting_name
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM
+from brlcli.policy import StatePolicy, setting_name
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.sim.gym_env import ACTIONS

@@ -14,9 +14,8 @@ import json
 import math
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -24,6 +23,7 @@ from brlcli.bench.metrics import FOOTPRINT_THRESHOLD, episode_infractions, km_dr
 from brlcli.bench.suites import GOAL_DISTANCE_M, SUITE_VERSION, EpisodeSpec
 from brlcli.errors import BrlInputError
 from brlcli.npzio import save_npz
+from brlcli.policy import Observation, Policy, PolicySpec
 from brlcli.provenance import atomic_write_json, provenance
 from brlcli.sim.town import load_town
 from brlcli.sim.vehicle import Control
@@ -31,45 +31,6 @@ from brlcli.sim.world import FRAME_DT_S, World
 
 LOG_FIELDS = ("game_time_s", "x", "y", "yaw_deg", "forward_speed_kmh", "collision_vehicles",
               "collision_pedestrians", "collision_other", "intersection_offroad", "intersection_otherlane")
-
-
-@dataclass
-class Observation:
-    """What a policy sees at a decision: camera images, measurements and the route command."""
-
-    rgb: np.ndarray | None
-    labels: np.ndarray | None
-    measurements: Any
-    command: int
-
-
-class Policy(Protocol):
-    """A driving policy the bench can run (BRL models, baselines)."""
-
-    name: str
-    setting: str
-    frames_per_decision: int
-
-    def reset(self, spec: EpisodeSpec, world: World) -> None:
-        """Start of an episode (privileged policies may keep the world to read the route and the traffic)."""
-
-    def decide(self, obs: Observation) -> Control:
-        """Control to hold until the next decision."""
-
-
-@dataclass
-class PolicySpec:
-    """How to build a policy in a worker process (policies are rebuilt there, never pickled)."""
-
-    kind: str
-    name: str
-    options: dict[str, Any] = field(default_factory=dict)
-
-    def build(self) -> Policy:
-        """Instantiate the policy."""
-        from brlcli.bench.policies import build_policy
-
-        return build_policy(self.kind, self.name, self.options)
 
 
 def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int) -> tuple[dict, dict]:

@@ -1,21 +1,80 @@
-"""Policies the bench can run; each is built inside the worker process from a plain description."""
+"""The driving-policy interface, below both the bench and the baselines.
+
+A policy sees an `Observation` every `frames_per_decision` simulator frames and returns the `Control` to hold.
+Policies travel to worker processes (local or Ray) as a `PolicySpec` (kind, name, plain options) and are rebuilt
+there with `build_policy`, so a worker can build any policy without importing the bench runner; the baselines'
+modules are imported only when their kind is built.
+"""
 
 from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from brlcli.bench.runner import Observation
-from brlcli.bench.suites import EpisodeSpec
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM, state_vector
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.sim.gym_env import ACTIONS, FRAMES_PER_DECISION
 from brlcli.sim.vehicle import Control
+
+if TYPE_CHECKING:
+    from brlcli.bench.suites import EpisodeSpec
+    from brlcli.sim.world import World
+
+AGENTS = ("brl", "autopilot", "mp", "il", "dqn")
+"""The policy kinds. brl: Bayesian RL models; autopilot: privileged expert; mp: modular pipeline; il: conditional
+imitation learning; dqn: deep RL (Stable-Baselines3 DQN)."""
+
+PATH_OPTIONS = ("model", "segnet")
+"""Options of a PolicySpec that name files (resolved to absolute paths before they travel to a worker)."""
+
+
+@dataclass
+class Observation:
+    """What a policy sees at a decision: camera images, measurements and the route command."""
+
+    rgb: np.ndarray | None
+    labels: np.ndarray | None
+    measurements: Any
+    command: int
+
+
+class Policy(Protocol):
+    """A driving policy the bench can run (BRL models, baselines)."""
+
+    name: str
+    setting: str
+    frames_per_decision: int
+
+    def reset(self, spec: EpisodeSpec, world: World) -> None:
+        """Start of an episode (privileged policies may keep the world to read the route and the traffic)."""
+
+    def decide(self, obs: Observation) -> Control:
+        """Control to hold until the next decision."""
+
+
+@dataclass
+class PolicySpec:
+    """How to build a policy in a worker process (policies are rebuilt there, never pickled)."""
+
+    kind: str
+    name: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def build(self) -> Policy:
+        """Instantiate the policy."""
+        return build_policy(self.kind, self.name, self.options)
+
+    def with_absolute_paths(self) -> PolicySpec:
+        """The same spec with its file options absolute (a worker may run in another directory)."""
+        opts = {k: (str(Path(v).resolve()) if k in PATH_OPTIONS and v is not None else v)
+                for k, v in self.options.items()}
+        return PolicySpec(self.kind, self.name, opts)
 
 
 def model_training_input(model_path: Path) -> str:
@@ -101,13 +160,8 @@ class AutopilotPolicy:
         return self._pilot.expert(obs.measurements)
 
 
-AGENTS = ("brl", "autopilot", "mp", "il", "dqn")
-"""brl: Bayesian RL models; autopilot: privileged expert; mp: modular pipeline; il: conditional imitation
-learning; dqn: deep RL (Stable-Baselines3 DQN)."""
-
-
-def build_policy(kind: str, name: str, options: dict[str, Any]) -> Any:
-    """A policy from its kind and options."""
+def build_policy(kind: str, name: str, options: dict[str, Any]) -> Policy:
+    """A policy from its kind and options (a baseline's module is imported only when its kind is built)."""
     if kind == "brl":
         return BRLPolicy(name, **options)
     if kind == "autopilot":
