@@ -17,6 +17,17 @@ app = typer.Typer(
 )
 
 
+EXECUTOR_HELP = "Where tasks run: local (processes on this machine) or ray (a Ray cluster; pip install 'brl[ray]')."
+RAY_ADDRESS_HELP = ("--executor ray: HOST:PORT of a cluster's head, auto (a running cluster) or local (a new local "
+                    "instance). Default: a running cluster if there is one, else a local instance.")
+
+
+def _executor(kind: str, workers: int, ray_address: str | None):  # -> brlcli.executor.Executor
+    from brlcli.executor import Executor
+
+    return Executor(kind, workers, ray_address)
+
+
 def _version(value: bool) -> None:
     if value:
         from brlcli import __version__
@@ -68,7 +79,10 @@ def train(
     steps: Annotated[int, typer.Option(help="Learning steps per model (paper: t_max = 4500).")] = 4500,
     seed: Annotated[int, typer.Option(help="Seed of a single model.")] = 0,
     seeds: Annotated[str | None, typer.Option(help="Train a model set, e.g. 0-8 (overrides --seed).")] = None,
-    workers: Annotated[int, typer.Option(help="Parallel processes for a model set.")] = 1,
+    workers: Annotated[int, typer.Option(help="Parallel processes for a model set (a local Ray instance's CPUs).")]
+    = 1,
+    executor: Annotated[str, typer.Option(help=EXECUTOR_HELP)] = "local",
+    ray_address: Annotated[str | None, typer.Option(help=RAY_ADDRESS_HELP)] = None,
     out: Annotated[Path, typer.Option("--out", help="Output directory (one seed_N/ per model).")] = Path("runs/train"),
     resume: Annotated[bool, typer.Option("--resume", help="Continue interrupted runs in --out.")] = False,
     variant: Annotated[str, typer.Option(help="paper, or reference-code (the authors' code's choices).")] = "paper",
@@ -84,10 +98,9 @@ def train(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from brlcli.sim.weather import get_weather
-    from brlcli.train import TrainConfig, check_inputs, parse_seeds, train_many
+    from brlcli.train import TrainConfig, check_inputs, check_run_dirs, parse_seeds, train_many
 
-    if workers < 1:
-        raise_input("--workers must be at least 1")
+    ex = _executor(executor, workers, ray_address)
     seed_list = parse_seeds(seeds) if seeds is not None else [seed]
     if input == "estimated" and segnet is None:
         from brlcli.models import default_segnet_path
@@ -100,7 +113,12 @@ def train(
 
     load_town(town)
     check_inputs(cfg)
+    check_run_dirs(cfg, seed_list, out, resume)
     console = Console(stderr=True)
+    if executor == "ray":
+        with console.status("connecting to Ray"):
+            ex.connect()
+        console.print(f"training {len(seed_list)} seeds on {ex.describe()}")
     columns = (TextColumn("seed {task.fields[seed]}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("reward {task.fields[reward]:7.2f}  TD {task.fields[td]:8.2f}  comps {task.fields[comps]}"),
                TimeElapsedColumn())
@@ -111,10 +129,12 @@ def train(
             bar.update(tasks[p.seed], completed=p.step, reward=p.mean_reward, td=p.td_error, comps=p.components)
 
         try:
-            results = train_many(cfg, seed_list, out, workers=workers, resume=resume, progress=report)
+            results = train_many(cfg, seed_list, out, workers=workers, resume=resume, progress=report, executor=ex)
         except KeyboardInterrupt:
             console.print(f"interrupted: finished episodes are checkpointed; continue with --resume --out {out}")
             raise typer.Exit(130) from None
+        finally:
+            ex.close()
     for r in results:
         s = r["summary"]
         ev = s.get("eval")
@@ -220,7 +240,9 @@ def bench(
     weathers: Annotated[str | None, typer.Option(help="Comma-separated weather ids or names.")] = None,
     episodes: Annotated[str | None, typer.Option(help="Deterministic subset: a count (40) or a fraction (0.1).")]
     = None,
-    workers: Annotated[int, typer.Option(help="Local worker processes.")] = 1,
+    workers: Annotated[int, typer.Option(help="Local worker processes (a local Ray instance's CPUs).")] = 1,
+    executor: Annotated[str, typer.Option(help=EXECUTOR_HELP)] = "local",
+    ray_address: Annotated[str | None, typer.Option(help=RAY_ADDRESS_HELP)] = None,
     shard: Annotated[str | None, typer.Option(help="Run slice K of N (K/N), e.g. one Docker job per shard.")] = None,
     seed: Annotated[int, typer.Option(help="Bench seed (traffic and weather noise per episode).")] = 0,
     out: Annotated[Path, typer.Option("--out", help="Results directory.")] = Path("runs/bench"),
@@ -236,8 +258,7 @@ def bench(
     from brlcli.bench.suites import shard as take_shard
     from brlcli.policy import PolicySpec, baseline_specs, build_policy
 
-    if workers < 1:
-        raise_input("--workers must be at least 1")
+    ex = _executor(executor, workers, ray_address)
     k, n = parse_shard(shard)
     specs = take_shard(subset(build_suite(suite, conditions, tasks, weathers), episodes), k, n)
     if deploy not in ("gt", "estimated"):
@@ -255,30 +276,40 @@ def bench(
               "policies": [{"kind": p.kind, "name": p.name, **p.options} for p in pols], "deploy": deploy,
               "seed": seed, "selection": {"conditions": conditions, "tasks": tasks, "weathers": weathers,
                                           "episodes": episodes}, "shard": [k, n]}
-    prepare(out, config, resume)
     console = Console(stderr=True)
+    if executor == "ray":
+        with console.status("connecting to Ray"):
+            ex.connect()  # before anything is written: an unreachable cluster is a one-line error
+    try:
+        done = prepare(out, config, resume)
+    except BaseException:
+        ex.close()
+        raise
     total = len(specs) * len(pols)
     columns = (TextColumn("bench {task.fields[suite]}"), BarColumn(), MofNCompleteColumn(),
-               TextColumn("{task.fields[rate]:5.2f} episodes/s  success {task.fields[succ]:3.0f}%"),
-               TimeElapsedColumn())
+               TextColumn("{task.fields[rate]:6.1f} episodes/min  success {task.fields[succ]:3.0f}%  "
+                          "({task.fields[where]})"), TimeElapsedColumn())
     import time
 
     t0 = time.perf_counter()
     with Progress(*columns, console=console) as bar:
-        task = bar.add_task("", total=total, suite=suite, rate=0.0, succ=0.0)
+        task = bar.add_task("", total=total, completed=min(len(done), total), suite=suite, rate=0.0, succ=0.0,
+                            where=ex.describe())
         stats = {"n": 0, "ok": 0}
 
         def report(r: dict) -> None:
             stats["n"] += 1
             stats["ok"] += int(r["success"])
-            bar.update(task, advance=1, rate=stats["n"] / (time.perf_counter() - t0),
+            bar.update(task, advance=1, rate=60.0 * stats["n"] / (time.perf_counter() - t0),
                        succ=100.0 * stats["ok"] / stats["n"])
 
         try:
-            results = run_bench(specs, pols, out, config, workers=workers, resume=True, progress=report)
+            results = run_bench(specs, pols, out, config, resume=True, progress=report, executor=ex)
         except KeyboardInterrupt:
             console.print(f"interrupted: finished episodes are saved; continue with --resume --out {out}")
             raise typer.Exit(130) from None
+        finally:
+            ex.close()
     table = Table(title=f"{suite}: {len(results)} episodes in {out}")
     for col in ("policy", "setting", "episodes", "success", "collision-free", "either", "km"):
         table.add_column(col, justify="right")

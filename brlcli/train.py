@@ -23,6 +23,7 @@ import numpy as np
 
 from brlcli.agent import BayesianAgent, BRLParams
 from brlcli.errors import BrlInputError
+from brlcli.executor import Executor, report, run_tasks
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.reward import RewardParams
 from brlcli.segnet import check_input_source, labeler_for
@@ -312,11 +313,10 @@ def parse_seeds(text: str) -> list[int]:
     return sorted(set(out))
 
 
-def _worker(args: tuple[dict, str, bool, Any]) -> dict[str, Any]:
-    cfg_dict, run_dir, resume, queue = args
-    cfg = TrainConfig.from_dict(cfg_dict)
-    report = queue.put if queue is not None else None
-    return train_run(cfg, Path(run_dir), resume=resume, progress=report)
+def _train_task(item: tuple[dict, str, bool]) -> dict[str, Any]:
+    """One seed's run in a worker (local process or Ray task); progress goes to the driver through the executor."""
+    cfg_dict, run_dir, resume = item
+    return train_run(TrainConfig.from_dict(cfg_dict), Path(run_dir), resume=resume, progress=report)
 
 
 def run_dir_for(out: Path, seed: int) -> Path:
@@ -324,41 +324,36 @@ def run_dir_for(out: Path, seed: int) -> Path:
     return Path(out) / f"seed_{seed}"
 
 
-def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, resume: bool = False,
-               progress: Callable[[Progress], None] | None = None) -> list[dict[str, Any]]:
-    """Train one model per seed (in `workers` processes); results do not depend on the worker count."""
-    import multiprocessing as mp
-    import queue as queue_mod
-
-    out = Path(out)
-    cfgs = [TrainConfig.from_dict({**cfg.to_dict(), "seed": s}) for s in seeds]
-    for c in cfgs:  # refuse before starting anything
-        d = run_dir_for(out, c.seed)
+def check_run_dirs(cfg: TrainConfig, seeds: list[int], out: Path, resume: bool) -> None:
+    """Refuse, before anything starts, to overwrite a seed's run without `resume`."""
+    for s in seeds:
+        d = run_dir_for(out, s)
         if (d / "config.json").exists() and not resume:
             raise BrlInputError(f"{d} already holds a training run; pass --resume or choose another --out")
-    check_inputs(cfg)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out / "run.json", provenance({**cfg.to_dict(), "seeds": seeds, "workers": workers}))
-    if workers <= 1 or len(seeds) == 1:
-        return [train_run(c, run_dir_for(out, c.seed), resume, progress) for c in cfgs]
-    import os
 
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")  # one BLAS thread per worker process: no oversubscription
-    ctx = mp.get_context("spawn")
-    with ctx.Manager() as manager:
-        q = manager.Queue()
-        with ctx.Pool(min(workers, len(seeds))) as pool:
-            pending = pool.map_async(_worker, [(c.to_dict(), str(run_dir_for(out, c.seed)), resume, q) for c in cfgs])
-            while True:
-                try:
-                    msg = q.get(timeout=0.2)
-                    if progress:
-                        progress(msg)
-                except queue_mod.Empty:
-                    if pending.ready():
-                        break
-            results = pending.get()
-        while not q.empty() and progress:
-            progress(q.get())
+
+def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, resume: bool = False,
+               progress: Callable[[Progress], None] | None = None, executor: str | Executor = "local",
+               ray_address: str | None = None) -> list[dict[str, Any]]:
+    """Train one model per seed, one task each on the executor; results (in seed order) do not depend on it.
+
+    Workers write each seed's run directory themselves (checkpoints while they train), so on a Ray cluster `out`
+    must be on a filesystem every node mounts at the same path; an interrupted set resumes with `resume`.
+    """
+    out = Path(out)
+    cfgs = [TrainConfig.from_dict({**cfg.to_dict(), "seed": s}) for s in seeds]
+    check_run_dirs(cfg, seeds, out, resume)
+    check_inputs(cfg)
+    ex = executor if isinstance(executor, Executor) else Executor(executor, workers, ray_address)
+    ex.connect()  # a bad executor fails before anything is written
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(out / "run.json", provenance({**cfg.to_dict(), "seeds": seeds, "workers": workers}))
+        items = [(c.to_dict(), str(run_dir_for(out, c.seed).resolve()), resume) for c in cfgs]
+        results: list[dict[str, Any]] = [{} for _ in items]
+        for i, result in run_tasks(_train_task, items, executor=ex, on_report=progress):
+            results[i] = result
+    finally:
+        if ex is not executor:
+            ex.close()
     return results

@@ -13,7 +13,8 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +23,10 @@ import numpy as np
 from brlcli.bench.metrics import FOOTPRINT_THRESHOLD, episode_infractions, km_driven
 from brlcli.bench.suites import GOAL_DISTANCE_M, SUITE_VERSION, EpisodeSpec
 from brlcli.errors import BrlInputError
-from brlcli.npzio import save_npz
+from brlcli.executor import Executor, run_tasks
+from brlcli.npzio import npz_bytes
 from brlcli.policy import Observation, Policy, PolicySpec
-from brlcli.provenance import atomic_write_json, provenance
+from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.sim.town import load_town
 from brlcli.sim.vehicle import Control
 from brlcli.sim.world import FRAME_DT_S, World
@@ -88,14 +90,14 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
 class _Worker:
     """Per-process cache: one world per (town, traffic) and one policy per policy spec."""
 
-    def __init__(self, policies: list[PolicySpec], bench_seed: int, frames_dir: str) -> None:
+    def __init__(self, policies: list[PolicySpec], bench_seed: int) -> None:
         self.policy_specs = policies
         self.policies: dict[int, Policy] = {}
         self.worlds: dict[tuple, World] = {}
         self.seed = bench_seed
-        self.frames_dir = Path(frames_dir)
 
-    def run(self, item: tuple[int, dict]) -> dict:
+    def run(self, item: tuple[int, dict]) -> tuple[dict, bytes]:
+        """One episode: its result record and its compressed frame log (written by the driver)."""
         p_idx, spec_dict = item
         spec = EpisodeSpec(**{**spec_dict, "start": tuple(spec_dict["start"]), "goal": tuple(spec_dict["goal"])})
         if p_idx not in self.policies:
@@ -104,23 +106,18 @@ class _Worker:
         if key not in self.worlds:
             self.worlds[key] = World(spec.town, vehicles=spec.vehicles, pedestrians=spec.pedestrians, seed=0)
         result, log = run_episode(self.worlds[key], spec, self.policies[p_idx], self.seed)
-        path = self.frames_dir / _safe(result["policy"]) / f"{_safe(spec.id)}.npz"
-        save_npz(path, log, compress=True)
-        result["frames_file"] = str(path.relative_to(self.frames_dir.parent))
-        return result
+        result["frames_file"] = f"frames/{_safe(result['policy'])}/{_safe(spec.id)}.npz"
+        return result, npz_bytes(log, compress=True)
+
+    def close(self) -> None:
+        """Release the worlds' physics clients."""
+        for world in self.worlds.values():
+            world.close()
+        self.worlds.clear()
 
 
-_WORKER: _Worker | None = None
-
-
-def _init_worker(policies: list[PolicySpec], seed: int, frames_dir: str) -> None:
-    global _WORKER
-    _WORKER = _Worker(policies, seed, frames_dir)
-
-
-def _run_item(item: tuple[int, dict]) -> dict:
-    assert _WORKER is not None
-    return _WORKER.run(item)
+def _bench_task(worker: _Worker, item: tuple[int, dict]) -> tuple[dict, bytes]:
+    return worker.run(item)
 
 
 def _safe(text: str) -> str:
@@ -162,39 +159,31 @@ def prepare(out: Path, config: dict[str, Any], resume: bool) -> set[tuple[str, s
 
 
 def run_bench(specs: list[EpisodeSpec], policies: list[PolicySpec], out: Path, config: dict[str, Any],
-              workers: int = 1, resume: bool = False,
-              progress: Callable[[dict], None] | None = None) -> list[dict]:
-    """Run every (policy, episode) not yet in `out`; returns all results of the directory."""
-    done = prepare(out, config, resume)
-    todo = [(i, s.as_dict()) for i, p in enumerate(policies) for s in specs if (p.name, s.id) not in done]
-    frames_dir = str(Path(out) / "frames")
-    with open(Path(out) / "results.jsonl", "a", encoding="utf-8") as fh:
+              workers: int = 1, resume: bool = False, progress: Callable[[dict], None] | None = None,
+              executor: str | Executor = "local", ray_address: str | None = None) -> list[dict]:
+    """Run every (policy, episode) not yet in `out` on the executor; returns all results of the directory.
 
-        def record(result: dict) -> None:
-            fh.write(json.dumps(result, sort_keys=True) + "\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-            if progress:
-                progress(result)
-
-        for result in _execute(todo, policies, config["seed"], frames_dir, workers):
-            record(result)
+    Workers return each episode's record and frame log; this process writes the frame file, then appends the
+    record to results.jsonl (flushed), so the directory is the same whatever ran the episodes, and resumable.
+    """
+    ex = executor if isinstance(executor, Executor) else Executor(executor, workers, ray_address)
+    ex.connect()  # a bad executor fails before anything is written
+    try:
+        done = prepare(out, config, resume)
+        todo = [(i, s.as_dict()) for i, p in enumerate(policies) for s in specs if (p.name, s.id) not in done]
+        setup = partial(_Worker, [p.with_absolute_paths() for p in policies], config["seed"])
+        with open(Path(out) / "results.jsonl", "a", encoding="utf-8") as fh:
+            for _, (result, frames) in run_tasks(_bench_task, todo, executor=ex, setup=setup):
+                atomic_write_bytes(Path(out) / result["frames_file"], frames)
+                fh.write(json.dumps(result, sort_keys=True) + "\n")
+                fh.flush()
+                os.fsync(fh.fileno())
+                if progress:
+                    progress(result)
+    finally:
+        if ex is not executor:
+            ex.close()
     return read_results(out)
-
-
-def _execute(todo: list, policies: list[PolicySpec], seed: int, frames_dir: str, workers: int) -> Iterator[dict]:
-    if workers <= 1 or len(todo) <= 1:
-        _init_worker(policies, seed, frames_dir)
-        for item in todo:
-            yield _run_item(item)
-        return
-    import multiprocessing as mp
-
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-    ctx = mp.get_context("spawn")
-    with ctx.Pool(workers, initializer=_init_worker, initargs=(policies, seed, frames_dir)) as pool:
-        yield from pool.imap_unordered(_run_item, todo, chunksize=1)
 
 
 def town_versions(specs: list[EpisodeSpec]) -> dict[str, str]:
