@@ -1,5 +1,7 @@
 # brl in a container: CPU-only, headless, non-root. Build: docker build -t brl .
 # Run:   docker run --rm -v "$PWD/out:/work/out" brl preview --out /work/out/preview
+# Ray is included (the ray extra, with ray[default]'s dashboard agent and wget for KubeRay's health probes), so the
+# same image serves as the head and worker image of a KubeRay cluster (README: Running on a Ray cluster).
 FROM python:3.11-slim
 
 ARG TORCH_VERSION=2.13.0
@@ -11,7 +13,7 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     OMP_NUM_THREADS=1
 
 RUN apt-get update \
-    && apt-get install -y --no-install-recommends git libglib2.0-0 libgomp1 \
+    && apt-get install -y --no-install-recommends git libglib2.0-0 libgomp1 wget \
     && rm -rf /var/lib/apt/lists/*
 
 # CPU-only torch first, so that the project's `torch` requirement does not pull a CUDA build
@@ -22,7 +24,7 @@ COPY pyproject.toml README.md ./
 COPY brlcli ./brlcli
 COPY towns ./towns
 COPY models ./models
-RUN pip install .
+RUN pip install '.[ray]' 'ray[default]>=2.60,<3'
 
 RUN useradd --create-home --uid 1000 brl && mkdir -p /work && chown brl:brl /work
 USER brl

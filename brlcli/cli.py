@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+
+if TYPE_CHECKING:
+    from brlcli.executor import Executor
 
 app = typer.Typer(
     name="brl",
@@ -22,7 +25,8 @@ RAY_ADDRESS_HELP = ("--executor ray: HOST:PORT of a cluster's head, auto (a runn
                     "instance). Default: a running cluster if there is one, else a local instance.")
 
 
-def _executor(kind: str, workers: int, ray_address: str | None):  # -> brlcli.executor.Executor
+def _executor(kind: str, workers: int, ray_address: str | None) -> Executor:
+    """Validate --executor, --workers and --ray-address (Ray itself is imported only when tasks run on it)."""
     from brlcli.executor import Executor
 
     return Executor(kind, workers, ray_address)

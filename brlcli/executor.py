@@ -284,7 +284,7 @@ def _map_ray(fn: Callable[..., Any], items: list[Any], setup: Callable[[], Any] 
                     if isinstance(cause, Exception):
                         raise cause from None
                     raise
-                yield index[ref], value
+                yield index.pop(ref), value  # drop the reference: Ray frees the object
         drain()
     finally:
         for ref in pending:
