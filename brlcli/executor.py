@@ -317,17 +317,17 @@ def _connect_ray(address: str | None, workers: int) -> bool:
             raise BrlInputError("--ray-address auto: no running Ray cluster found (start one with ray start --head)")
         address = "local"
     if address == "local":
-        return _init(ray, None, {**quiet, "num_cpus": workers if workers > 1 else None, "include_dashboard": False})
+        return _init(ray, "local", {**quiet, "num_cpus": workers if workers > 1 else None, "include_dashboard": False})
     if not address.startswith("ray://"):
         _check_reachable(address)
     return _init(ray, address, quiet)
 
 
-def _init(ray: Any, address: str | None, options: dict[str, Any]) -> bool:
+def _init(ray: Any, address: str, options: dict[str, Any]) -> bool:
     try:
         ray.init(address=address, **options)
     except Exception as exc:  # Ray raises ConnectionError, ValueError, RuntimeError, ...
-        where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+        where = "a local Ray instance" if address == "local" else f"the Ray cluster at {address}"
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise BrlInputError(f"cannot start or join {where}: {first}") from None
     return True

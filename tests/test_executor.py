@@ -22,7 +22,7 @@ from brlcli.train import TrainConfig, train_many, train_run
 def ray_instance():
     """One local Ray instance with 2 CPUs for the whole module (shut down at the end)."""
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False)
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # Ray workers cannot import test modules
     yield ray
     ray.shutdown()
