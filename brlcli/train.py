@@ -26,6 +26,7 @@ from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.reward import RewardParams
 from brlcli.segnet import check_input_source, labeler_for
+from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import ACTION_NAMES, DrivingEnv
 from brlcli.sim.weather import get_weather
 
@@ -53,6 +54,11 @@ class TrainConfig:
     segnet: str | None = None  # the segmentation net for input "estimated" (None: the shipped one)
     params: dict[str, Any] = field(default_factory=dict)
     curve_every: int = 0  # evaluate greedily on the paper suite every N steps (learning_curve.csv); 0 = never
+    camera_pitch_deg: float = -15.0  # pitch of the state camera (deg, - = down); the authors' code uses -30
+    road_view: str = "road"  # the road-view reward counts "road" or "road+line" state entries
+    offroad_end: float | None = None  # end a training episode when the off-road share of the footprint exceeds it
+    start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m ...
+    start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
@@ -60,6 +66,12 @@ class TrainConfig:
             raise BrlInputError("--steps must be at least 1")
         if self.curve_every < 0:
             raise BrlInputError("--curve-every must be >= 0")
+        try:
+            self.reward_params()
+            self.camera()
+            DrivingEnv.check_episode_rules(self.offroad_end, self.start_offset_m, self.start_yaw_deg)
+        except ValueError as exc:
+            raise BrlInputError(f"bad training configuration: {exc}") from None
         if self.variant not in ("paper", "reference-code"):
             raise BrlInputError(f"unknown variant '{self.variant}'; choose paper or reference-code")
         get_weather(self.weather)
@@ -81,6 +93,14 @@ class TrainConfig:
         if "route_kinds" in d:
             d["route_kinds"] = tuple(d["route_kinds"])
         return cls(**d)
+
+    def reward_params(self) -> RewardParams:
+        """The reward's parameters for this run."""
+        return RewardParams(target_speed_kmh=self.target_speed_kmh, road_view=self.road_view)
+
+    def camera(self) -> CameraConfig:
+        """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""
+        return CameraConfig(pitch_deg=self.camera_pitch_deg)
 
     def agent_params(self) -> BRLParams:
         """The agent's parameters for this run."""
@@ -117,7 +137,9 @@ def _labeler(cfg: TrainConfig) -> Callable[[np.ndarray], np.ndarray] | None:
 
 def _make_env(cfg: TrainConfig) -> DrivingEnv:
     return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training", kinds=cfg.route_kinds,
-                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh), labeler=_labeler(cfg))
+                      reward=cfg.reward_params(), labeler=_labeler(cfg), camera=cfg.camera(),
+                      offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
+                      start_yaw_deg=cfg.start_yaw_deg)
 
 
 def _log_row(step: int, episode: int, decision: int, action: int, reward: float, terms: dict, learn: Any,
@@ -172,6 +194,7 @@ class _Curve:
         self.path = run_dir / CURVE_FILE
         self.rows = [r for r in read_curve(self.path) if r["env_steps"] <= step] if self.path.exists() else []
         self.labeler = env.labeler
+        self.camera = cfg.camera()
         self.setting = "TGDG" if cfg.input == "gt" else "TEDE"
         self.evaluator = SuiteEvaluator("paper")
         self.eval_s = 0.0
@@ -181,7 +204,8 @@ class _Curve:
         from brlcli.curve import write_curve
 
         t0 = time.perf_counter()
-        policy = StatePolicy("brl", self.setting, greedy_brl(agent), self.labeler)  # never the training generator
+        policy = StatePolicy("brl", self.setting, greedy_brl(agent), self.labeler,  # never the training generator
+                             self.camera)
         self.rows.append({"env_steps": step, **self.evaluator.evaluate(policy)})
         write_curve(self.path, self.rows)
         self.eval_s += time.perf_counter() - t0
@@ -282,7 +306,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     if cfg.evaluate:
         from brlcli.evaluate import evaluate_lane_keeping
 
-        ev = evaluate_lane_keeping(agent, town=cfg.town, weather=cfg.weather, labeler=_labeler(cfg))
+        ev = evaluate_lane_keeping(agent, town=cfg.town, weather=cfg.weather, labeler=_labeler(cfg),
+                                   camera=cfg.camera())
         summary["eval"] = ev
     atomic_write_json(run_dir / "summary.json", {**provenance(cfg.to_dict()), "summary": summary})
     if progress:

@@ -124,6 +124,16 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
     return result, log
 
 
+def world_for(cache: dict[tuple, World], spec: EpisodeSpec, policy: Policy) -> World:
+    """The cached world for an episode's town and traffic, seen through the policy's camera (`policy.camera`, a
+    CameraConfig, for state policies trained with another camera; default CoRL2017's)."""
+    camera = getattr(policy, "camera", None)
+    key = (spec.town, spec.vehicles, spec.pedestrians, camera)
+    if key not in cache:
+        cache[key] = World(spec.town, vehicles=spec.vehicles, pedestrians=spec.pedestrians, seed=0, camera=camera)
+    return cache[key]
+
+
 class _Worker:
     """Per-process cache: one world per (town, traffic) and one policy per policy spec."""
 
@@ -139,10 +149,8 @@ class _Worker:
         spec = EpisodeSpec(**{**spec_dict, "start": tuple(spec_dict["start"]), "goal": tuple(spec_dict["goal"])})
         if p_idx not in self.policies:
             self.policies[p_idx] = self.policy_specs[p_idx].build()
-        key = (spec.town, spec.vehicles, spec.pedestrians)
-        if key not in self.worlds:
-            self.worlds[key] = World(spec.town, vehicles=spec.vehicles, pedestrians=spec.pedestrians, seed=0)
-        result, log = run_episode(self.worlds[key], spec, self.policies[p_idx], self.seed)
+        result, log = run_episode(world_for(self.worlds, spec, self.policies[p_idx]), spec, self.policies[p_idx],
+                                  self.seed)
         path = self.frames_dir / _safe(result["policy"]) / f"{_safe(spec.id)}.npz"
         save_npz(path, log, compress=True)
         result["frames_file"] = str(path.relative_to(self.frames_dir.parent))
