@@ -203,7 +203,8 @@ def collect(
 
 @app.command()
 def bench(
-    suite: Annotated[str, typer.Option(help="paper (lane-keeping table) or corl2017.")] = "paper",
+    suite: Annotated[str, typer.Option(help="paper (lane-keeping table), validation (the paper suite on the towns' "
+                                            "validation routes) or corl2017.")] = "paper",
     agent: Annotated[str, typer.Option(help="brl (trained models), autopilot (privileged expert), mp (modular "
                                             "pipeline), il (imitation learning), dqn (deep RL).")] = "brl",
     model: Annotated[str | None, typer.Option(help="A trained model: BRL model.npz or run dir; il: il.pt or its dir; "
@@ -214,7 +215,7 @@ def bench(
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --deploy estimated (default: shipped).")]
     = None,
     conditions: Annotated[str | None, typer.Option(help="corl2017: training,new_weather,new_town,new_town_weather; "
-                                                        "paper: unseen_town,training_town.")] = None,
+                                                        "paper, validation: unseen_town,training_town.")] = None,
     tasks: Annotated[str | None, typer.Option(help="Comma-separated tasks (corl2017: straight,one_curve,navigation,"
                                                    "navigation_dynamic).")] = None,
     weathers: Annotated[str | None, typer.Option(help="Comma-separated weather ids or names.")] = None,
