@@ -116,14 +116,19 @@ def train(
             console.print(f"interrupted: finished episodes are checkpointed; continue with --resume --out {out}")
             raise typer.Exit(130) from None
     for r in results:
-        s = r["summary"]
-        ev = s.get("eval")
-        line = (f"seed {s['seed']}: {s['steps']} steps, {s['episodes']} episodes, {s['components']} components, "
-                f"{s['steps_per_s']:.0f} steps/s")
-        if ev:
-            line += f", lane-keeping success {ev['success_rate']:.0%} ({ev['town']})"
-        console.print(line)
+        console.print(train_summary_line(r["summary"]), soft_wrap=True)
     typer.echo(str(out))
+
+
+def train_summary_line(s: dict) -> str:
+    """One trained model's end-of-run line: totals, and the greedy evaluation's success beside Either and Score."""
+    line = (f"seed {s['seed']}: {s['steps']} steps, {s['episodes']} episodes, {s['components']} components, "
+            f"{s['steps_per_s']:.0f} steps/s")
+    ev = s.get("eval")
+    if ev:
+        line += (f", lane-keeping success {ev['success_rate']:.0%}  Either {ev['either_share']:.1%}  "
+                 f"Score {ev['score']:.2f} ({ev['town']})")
+    return line
 
 
 CORL_TRAFFIC = {"town01": (20, 50), "town02": (15, 50)}
