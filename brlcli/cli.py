@@ -131,6 +131,98 @@ def train_summary_line(s: dict) -> str:
     return line
 
 
+@app.command()
+def sweep(
+    grid: Annotated[Path | None, typer.Argument(help="Grid file (TOML or JSON): [base] and [variants.NAME] tables of "
+                                                     "training-config overrides (params.* for the agent).")] = None,
+    seeds: Annotated[str, typer.Option(help="Seeds of every variant, e.g. 0-8 or 0,2,5.")] = "0-8",
+    routes: Annotated[str, typer.Option(help="Route set of the greedy evaluation: validation (model selection) or "
+                                             "paper (the test routes, for reporting).")] = "validation",
+    variants: Annotated[str | None, typer.Option(help="Comma-separated subset of the grid's variants.")] = None,
+    episodes: Annotated[str | None, typer.Option(help="Evaluate on a deterministic subset: a count (20) or a "
+                                                      "fraction (0.25) of the route set's episodes.")] = None,
+    workers: Annotated[int, typer.Option(help="Local worker processes.")] = 1,
+    out: Annotated[Path, typer.Option("--out", help="Sweep directory (VARIANT/seed_N/ runs, sweep.md/csv/png/json).")]
+    = Path("runs/sweep"),
+    resume: Annotated[bool, typer.Option("--resume", help="Continue a sweep in --out: finished runs are skipped, "
+                                                          "unfinished ones resume from their checkpoint.")] = False,
+    report_only: Annotated[Path | None, typer.Option("--report-only", help="Rebuild the tables and plot of the sweep "
+                                                                           "in this directory from its finished runs."
+                                                     )] = None,
+) -> None:
+    """Train every variant of a grid for several seeds, evaluate every model on a route set, compare the variants."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from brlcli.sweep import plan_sweep, prepare_sweep, run_sweep, write_tables
+    from brlcli.train import parse_seeds
+
+    console = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
+    if report_only is not None:
+        if grid is not None:
+            raise_input("give a grid file or --report-only DIR, not both")
+        result = write_tables(report_only)
+        _sweep_table(console, result)
+        typer.echo(str(Path(report_only) / "sweep.md"))
+        return
+    if grid is None:
+        raise_input("give a sweep grid file (TOML or JSON), or --report-only DIR")
+    if workers < 1:
+        raise_input("--workers must be at least 1")
+    only = [v.strip() for v in variants.split(",") if v.strip()] if variants is not None else None
+    plan = plan_sweep(grid, parse_seeds(seeds), routes=routes, episodes=episodes, variants=only)
+    prepare_sweep(plan, out, resume)  # refuse a used --out before the progress bars start
+    n = len(plan.runs())
+    columns = (TextColumn("{task.description:9}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[now]}"),
+               TimeElapsedColumn())
+    with Progress(*columns, console=console) as bar:
+        trained = bar.add_task("training", total=n, now="")
+        evaluated = bar.add_task("evaluating", total=n, now="")
+        seen: dict[tuple[str, int], int] = {}
+
+        def report(msg: dict) -> None:  # see brlcli.sweep.run_sweep
+            kind, run = msg["kind"], f"{msg['variant']} seed {msg['seed']}"
+            if kind == "trained":
+                bar.advance(trained)
+            elif kind == "evaluated":
+                bar.advance(evaluated)
+            elif kind == "episode":
+                key = (msg["variant"], msg["seed"])
+                seen[key] = seen.get(key, 0) + 1
+                bar.update(evaluated, now=f"{run}: {seen[key]} episodes")
+            elif kind == "step":
+                bar.update(trained, now=f"{run}: step {msg['step']}/{msg['steps']}, {msg['components']} components")
+
+        try:
+            result = run_sweep(plan, out, workers=workers, resume=resume, progress=report)
+        except KeyboardInterrupt:
+            console.print(f"interrupted: finished runs, episodes and checkpoints are kept; continue with --resume "
+                          f"--out {out}")
+            raise typer.Exit(130) from None
+    _sweep_table(console, result)
+    typer.echo(str(out / "sweep.md"))
+
+
+def _sweep_table(console, result: dict) -> None:
+    from rich.table import Table
+
+    table = Table(title=f"brl sweep: {result['runs']}/{result['total']} runs finished in {result['out']}")
+    for col in ("variant", "seeds", "success", "either", "score", "best", "success posterior"):
+        table.add_column(col, justify="left" if col in ("variant", "best") else "right")
+    for r in result["rows"]:
+        if not r["seeds"]:
+            table.add_row(r["variant"], "0", *(["–"] * 5))
+            continue
+        table.add_row(r["variant"], str(r["seeds"]), f"{r['success_mean']:.1%} ± {r['success_std']:.1%}",
+                      f"{r['either_mean']:.1%} ± {r['either_std']:.1%}",
+                      f"{r['score_mean']:.3f} ± {r['score_std']:.3f}", f"seed_{r['best_seed']} ({r['best_score']:.3f})",
+                      f"{r['success_posterior_mean']:.1%} [{r['success_posterior_lo']:.1%}, "
+                      f"{r['success_posterior_hi']:.1%}]")
+    console.print(table)
+    for note in result["notes"]:
+        console.print(f"note: {note}")
+
+
 CORL_TRAFFIC = {"town01": (20, 50), "town02": (15, 50)}
 
 
