@@ -30,7 +30,7 @@ def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version.")]
     = False,
 ) -> None:
-    """brl: collect, train-seg, train, bench, report; baselines train-il, train-rl; preview the towns."""
+    """brl: collect, train-seg, train, sweep, bench, report; baselines train-il, train-rl; preview the towns."""
 
 
 @app.command()
