@@ -37,9 +37,9 @@ def route_timeout_s(length_m: float) -> float:
 class DrivingEnv(gym.Env):
     """Lane keeping on a town's routes: observation = 30-vector state, 4 discrete actions, the paper's reward.
 
-    An episode starts at a route drawn from `routes` ("training" or "lane_keeping" of the town) and ends at the
-    goal (terminated), at the route's CoRL-style timeout or when stuck (truncated). With a `labeler` (RGB ->
-    label image, e.g. the segmentation net) the state comes from estimated labels instead of ground truth.
+    An episode starts at a route drawn from `routes` ("training", "lane_keeping" or "validation" of the town) and
+    ends at the goal (terminated), at the route's CoRL-style timeout or when stuck (truncated). With a `labeler`
+    (RGB -> label image, e.g. the segmentation net) the state comes from estimated labels instead of ground truth.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -59,10 +59,7 @@ class DrivingEnv(gym.Env):
         self.start_offset_m = float(start_offset_m)  # start pose: lateral offset ~ U(-a, a) m
         self.start_yaw_deg = float(start_yaw_deg)  # and heading offset ~ U(-b, b) degrees
         self.world = World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians, camera=camera)
-        pool = {"training": self.world.town.training_routes, "lane_keeping": self.world.town.lane_keeping_routes}
-        if routes not in pool:
-            raise BrlInputError(f"unknown route set '{routes}'; choose training or lane_keeping")
-        self.routes = [r for r in pool[routes] if r.kind in kinds]
+        self.routes = [r for r in self.world.town.route_set(routes) if r.kind in kinds]
         if not self.routes:
             raise BrlInputError(f"town {self.world.town.name} has no {routes} routes of kinds {', '.join(kinds)}")
         self.reward_params = reward or RewardParams()
