@@ -171,7 +171,7 @@ def sweep(
         raise_input("--workers must be at least 1")
     only = [v.strip() for v in variants.split(",") if v.strip()] if variants is not None else None
     plan = plan_sweep(grid, parse_seeds(seeds), routes=routes, episodes=episodes, variants=only)
-    prepare_sweep(plan, out, resume)  # refuse a used --out before the progress bars start
+    prepare_sweep(plan, out, resume, write=False)  # refuse a used --out before the progress bars start
     n = len(plan.runs())
     columns = (TextColumn("{task.description:9}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[now]}"),
                TimeElapsedColumn())

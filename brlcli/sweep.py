@@ -335,8 +335,9 @@ def plan_sweep(grid: Path, seeds: list[int], routes: str = "validation", episode
     return SweepPlan(str(grid), resolved, sorted(seeds), routes, episodes, bench_seed)
 
 
-def prepare_sweep(plan: SweepPlan, out: Path, resume: bool) -> None:
-    """Refuse an existing sweep without --resume or with another configuration; check every run; write sweep.json."""
+def prepare_sweep(plan: SweepPlan, out: Path, resume: bool, write: bool = True) -> None:
+    """Refuse an existing sweep without --resume or with another configuration; check every run; write sweep.json
+    (unless `write` is false: a check only)."""
     out = Path(out)
     meta = out / SWEEP_FILE
     if meta.exists():
@@ -360,7 +361,7 @@ def prepare_sweep(plan: SweepPlan, out: Path, resume: bool) -> None:
             if saved_cfg != TrainConfig.from_dict(cfg).to_dict():
                 raise BrlInputError(f"{cfg_path.parent} holds a run with another configuration than variant "
                                     f"'{variant}'; choose another --out")
-    if not meta.exists():
+    if write and not meta.exists():
         atomic_write_json(meta, provenance(plan.config()))
 
 

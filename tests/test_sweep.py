@@ -127,3 +127,13 @@ def test_tiny_sweep_tables_resume_and_workers(tmp_path: Path) -> None:
 
     run_sweep(plan, b, workers=2)
     assert (b / "sweep.csv").read_bytes() == before["sweep.csv"]
+
+
+def test_cli_sweep_runs_end_to_end(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "brlcli.cli", "sweep", str(_grid(tmp_path, GRID)), "--out", str(out),
+                        "--variants", "paper", "--seeds", "0", "--episodes", "1"], capture_output=True, text=True,
+                       timeout=240)
+    assert r.returncode == 0, r.stderr
+    assert [row["variant"] for row in _table(out)] == ["paper"]
+    assert (out / "paper" / "seed_0" / "model.npz").exists()
