@@ -127,7 +127,7 @@ def train_summary_line(s: dict) -> str:
     ev = s.get("eval")
     if ev:
         line += (f", lane-keeping success {ev['success_rate']:.0%}  Either {ev['either_share']:.1%}  "
-                 f"Score {ev['score']:.2f} ({ev['town']})")
+                 f"Score {ev['score']:.2f} ({ev['town']} {ev.get('routes', 'lane_keeping')} routes)")
     return line
 
 

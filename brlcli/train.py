@@ -307,7 +307,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         from brlcli.evaluate import evaluate_lane_keeping
 
         ev = evaluate_lane_keeping(agent, town=cfg.town, weather=cfg.weather, labeler=_labeler(cfg),
-                                   camera=cfg.camera())
+                                   camera=cfg.camera(), routes="validation")
         summary["eval"] = ev
     atomic_write_json(run_dir / "summary.json", {**provenance(cfg.to_dict()), "summary": summary})
     if progress:

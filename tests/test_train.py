@@ -137,7 +137,8 @@ def test_train_summary_line_reports_either_and_score_beside_success() -> None:
     from brlcli.cli import train_summary_line
 
     s = {"seed": 3, "steps": 4500, "episodes": 40, "components": 12, "steps_per_s": 150.0,
-         "eval": {"town": "town01", "success_rate": 1.0, "either_share": 0.627, "score": 0.79}}
+         "eval": {"town": "town01", "routes": "validation", "success_rate": 1.0, "either_share": 0.627,
+                  "score": 0.79}}
     line = train_summary_line(s)
-    assert "lane-keeping success 100%  Either 62.7%  Score 0.79 (town01)" in line
+    assert "lane-keeping success 100%  Either 62.7%  Score 0.79 (town01 validation routes)" in line
     assert "Either" not in train_summary_line({**s, "eval": None})
