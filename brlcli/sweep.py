@@ -50,6 +50,8 @@ ROUTE_SETS = ("validation", "paper")
 """Route sets a sweep evaluates on: `brl bench` suites (validation: model selection; paper: the test routes)."""
 RESERVED_KEYS = {"seed": "seeds come from --seeds", "evaluate": "a sweep evaluates every model with the bench"}
 """Training config keys a variant may not set."""
+OPEN_TABLES = {"params"}
+"""Config tables whose keys are checked by their owner (params.*: BRLParams.from_dict), not against the defaults."""
 VARIANT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 SWEEP_COLUMNS = ("variant", "seeds", "success_mean", "success_std", "either_mean", "either_std", "score_mean",
                  "score_std", "best_seed", "best_score", "success_posterior_mean", "success_posterior_lo",
@@ -71,7 +73,8 @@ def _merge(base: dict[str, Any], over: dict[str, Any], where: str, defaults: dic
             raise BrlInputError(f"unknown training config key '{name}'")
         if isinstance(value, dict) and isinstance(out.get(key), dict):
             default = defaults.get(key) if defaults is not None else None
-            sub_defaults = default if isinstance(default, dict) and default else None  # an empty table is open
+            open_table = not (isinstance(default, dict) and default) or name in OPEN_TABLES
+            sub_defaults = None if open_table else default  # keys of an open table are checked by its owner
             out[key] = _merge(out[key], value, f"{name}.", sub_defaults)
         else:
             out[key] = value
@@ -94,7 +97,7 @@ def _check_types(d: dict[str, Any], defaults: dict[str, Any], where: str = "") -
             ok = isinstance(value, list | tuple)
         elif isinstance(default, dict):
             ok = isinstance(value, dict)
-            if ok and default:
+            if ok and default and name not in OPEN_TABLES:
                 _check_types(value, default, f"{name}.")
         else:
             ok = isinstance(value, type(default))

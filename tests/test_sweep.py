@@ -40,12 +40,12 @@ def test_grid_merges_base_and_nested_params(tmp_path: Path) -> None:
     default = TrainConfig().to_dict()
     assert grid["paper"] == {**default, "steps": 60, "evaluate": False}
     assert grid["speed6"]["target_speed_kmh"] == 6.0 and grid["speed6"]["steps"] == 60
-    assert grid["gamma8"]["params"] == {"gamma": 0.8}
+    assert grid["gamma8"]["params"] == {**default["params"], "gamma": 0.8}
     assert TrainConfig.from_dict(grid["gamma8"]).agent_params().gamma == 0.8
     assert list(load_grid(_grid(tmp_path, GRID), ["gamma8", "paper"])) == ["paper", "gamma8"]
     as_json = {"base": {"steps": 60}, "variants": {"a": {"params": {"gamma": 0.7}}, "b": {}}}
     grid = load_grid(_grid(tmp_path, json.dumps(as_json), "grid.json"))
-    assert grid["a"]["params"] == {"gamma": 0.7} and grid["b"]["steps"] == 60
+    assert grid["a"]["params"] == {**default["params"], "gamma": 0.7} and grid["b"]["steps"] == 60
 
 
 @pytest.mark.parametrize(("text", "words"), [
