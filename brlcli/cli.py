@@ -45,7 +45,7 @@ def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version.")]
     = False,
 ) -> None:
-    """brl: collect, train-seg, train, bench, report; baselines train-il, train-rl; preview the towns."""
+    """brl: collect, train-seg, train, sweep, bench, report; baselines train-il, train-rl; preview the towns."""
 
 
 @app.command()
@@ -91,7 +91,8 @@ def train(
     resume: Annotated[bool, typer.Option("--resume", help="Continue interrupted runs in --out.")] = False,
     variant: Annotated[str, typer.Option(help="paper, or reference-code (the authors' code's choices).")] = "paper",
     target_speed_kmh: Annotated[float, typer.Option(help="Reward's target speed v_t, km/h.")] = 20.0,
-    evaluate: Annotated[bool, typer.Option(help="Greedy evaluation on the lane-keeping routes at the end.")] = True,
+    evaluate: Annotated[bool, typer.Option(help="Greedy evaluation on the town's validation routes at the end.")]
+    = True,
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --input estimated (default: shipped).")]
     = None,
     curve_every: Annotated[int, typer.Option(help="Evaluate greedily on the paper suite every N steps and write "
@@ -140,14 +141,118 @@ def train(
         finally:
             ex.close()
     for r in results:
-        s = r["summary"]
-        ev = s.get("eval")
-        line = (f"seed {s['seed']}: {s['steps']} steps, {s['episodes']} episodes, {s['components']} components, "
-                f"{s['steps_per_s']:.0f} steps/s")
-        if ev:
-            line += f", lane-keeping success {ev['success_rate']:.0%} ({ev['town']})"
-        console.print(line)
+        console.print(train_summary_line(r["summary"]), soft_wrap=True)
     typer.echo(str(out))
+
+
+def train_summary_line(s: dict) -> str:
+    """One trained model's end-of-run line: totals, and the greedy evaluation's success beside Either and Score."""
+    line = (f"seed {s['seed']}: {s['steps']} steps, {s['episodes']} episodes, {s['components']} components, "
+            f"{s['steps_per_s']:.0f} steps/s")
+    ev = s.get("eval")
+    if ev:
+        line += (f", lane-keeping success {ev['success_rate']:.0%}  Either {ev['either_share']:.1%}  "
+                 f"Score {ev['score']:.2f} ({ev['town']} {ev.get('routes', 'lane_keeping')} routes)")
+    return line
+
+
+@app.command()
+def sweep(
+    grid: Annotated[Path | None, typer.Argument(help="Grid file (TOML or JSON): [base] and [variants.NAME] tables of "
+                                                     "training-config overrides (params.* for the agent).")] = None,
+    seeds: Annotated[str, typer.Option(help="Seeds of every variant, e.g. 0-8 or 0,2,5.")] = "0-8",
+    routes: Annotated[str, typer.Option(help="Route set of the greedy evaluation: validation (model selection) or "
+                                             "paper (the test routes, for reporting).")] = "validation",
+    variants: Annotated[str | None, typer.Option(help="Comma-separated subset of the grid's variants.")] = None,
+    episodes: Annotated[str | None, typer.Option(help="Evaluate on a deterministic subset: a count (20) or a "
+                                                      "fraction (0.25) of the route set's episodes.")] = None,
+    workers: Annotated[int, typer.Option(help="Parallel processes (a local Ray instance's CPUs).")] = 1,
+    executor: Annotated[str, typer.Option(help=EXECUTOR_HELP)] = "local",
+    ray_address: Annotated[str | None, typer.Option(help=RAY_ADDRESS_HELP)] = None,
+    out: Annotated[Path, typer.Option("--out", help="Sweep directory (VARIANT/seed_N/ runs, sweep.md/csv/png/json).")]
+    = Path("runs/sweep"),
+    resume: Annotated[bool, typer.Option("--resume", help="Continue a sweep in --out: finished runs are skipped, "
+                                                          "unfinished ones resume from their checkpoint.")] = False,
+    report_only: Annotated[Path | None, typer.Option("--report-only", help="Rebuild the tables and plot of the sweep "
+                                                                           "in this directory from its finished runs."
+                                                     )] = None,
+) -> None:
+    """Train every variant of a grid for several seeds, evaluate every model on a route set, compare the variants."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from brlcli.sweep import plan_sweep, prepare_sweep, run_sweep, write_tables
+    from brlcli.train import parse_seeds
+
+    console = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
+    if report_only is not None:
+        if grid is not None:
+            raise_input("give a grid file or --report-only DIR, not both")
+        result = write_tables(report_only)
+        _sweep_table(console, result)
+        typer.echo(str(Path(report_only) / "sweep.md"))
+        return
+    if grid is None:
+        raise_input("give a sweep grid file (TOML or JSON), or --report-only DIR")
+    ex = _executor(executor, workers, ray_address)
+    only = [v.strip() for v in variants.split(",") if v.strip()] if variants is not None else None
+    plan = plan_sweep(grid, parse_seeds(seeds), routes=routes, episodes=episodes, variants=only)
+    prepare_sweep(plan, out, resume, write=False)  # refuse a used --out before the progress bars start
+    if executor == "ray":
+        with console.status("connecting to Ray"):
+            ex.connect()
+        console.print(f"sweep of {len(plan.runs())} runs on {ex.describe()}")
+    n = len(plan.runs())
+    columns = (TextColumn("{task.description:9}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[now]}"),
+               TimeElapsedColumn())
+    with Progress(*columns, console=console) as bar:
+        trained = bar.add_task("training", total=n, now="")
+        evaluated = bar.add_task("evaluating", total=n, now="")
+        seen: dict[tuple[str, int], int] = {}
+
+        def report(msg: dict) -> None:  # see brlcli.sweep.run_sweep
+            kind, run = msg["kind"], f"{msg['variant']} seed {msg['seed']}"
+            if kind == "trained":
+                bar.advance(trained)
+            elif kind == "evaluated":
+                bar.advance(evaluated)
+            elif kind == "episode":
+                key = (msg["variant"], msg["seed"])
+                seen[key] = seen.get(key, 0) + 1
+                bar.update(evaluated, now=f"{run}: {seen[key]} episodes")
+            elif kind == "step":
+                bar.update(trained, now=f"{run}: step {msg['step']}/{msg['steps']}, {msg['components']} components")
+
+        try:
+            result = run_sweep(plan, out, workers=workers, resume=resume, progress=report, executor=ex)
+        except KeyboardInterrupt:
+            console.print(f"interrupted: finished runs, episodes and checkpoints are kept; continue with --resume "
+                          f"--out {out}")
+            raise typer.Exit(130) from None
+        finally:
+            ex.close()
+    _sweep_table(console, result)
+    typer.echo(str(out / "sweep.md"))
+
+
+def _sweep_table(console, result: dict) -> None:
+    from rich.table import Table
+
+    table = Table(title=f"brl sweep: {result['runs']}/{result['total']} runs finished in {result['out']}")
+    for col in ("variant", "seeds", "success", "either", "score", "best", "success posterior"):
+        table.add_column(col, justify="left" if col in ("variant", "best") else "right")
+    for r in result["rows"]:
+        if not r["seeds"]:
+            table.add_row(r["variant"], "0", *(["–"] * 5))
+            continue
+        table.add_row(r["variant"], str(r["seeds"]), f"{r['success_mean']:.1%} ± {r['success_std']:.1%}",
+                      f"{r['either_mean']:.1%} ± {r['either_std']:.1%}",
+                      f"{r['score_mean']:.3f} ± {r['score_std']:.3f}", f"seed_{r['best_seed']} ({r['best_score']:.3f})",
+                      f"{r['success_posterior_mean']:.1%} [{r['success_posterior_lo']:.1%}, "
+                      f"{r['success_posterior_hi']:.1%}]")
+    console.print(table)
+    for note in result["notes"]:
+        console.print(f"note: {note}")
 
 
 CORL_TRAFFIC = {"town01": (20, 50), "town02": (15, 50)}
@@ -227,7 +332,8 @@ def collect(
 
 @app.command()
 def bench(
-    suite: Annotated[str, typer.Option(help="paper (lane-keeping table) or corl2017.")] = "paper",
+    suite: Annotated[str, typer.Option(help="paper (lane-keeping table), validation (the paper suite on the towns' "
+                                            "validation routes) or corl2017.")] = "paper",
     agent: Annotated[str, typer.Option(help="brl (trained models), autopilot (privileged expert), mp (modular "
                                             "pipeline), il (imitation learning), dqn (deep RL).")] = "brl",
     model: Annotated[str | None, typer.Option(help="A trained model: BRL model.npz or run dir; il: il.pt or its dir; "
@@ -238,7 +344,7 @@ def bench(
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --deploy estimated (default: shipped).")]
     = None,
     conditions: Annotated[str | None, typer.Option(help="corl2017: training,new_weather,new_town,new_town_weather; "
-                                                        "paper: unseen_town,training_town.")] = None,
+                                                        "paper, validation: unseen_town,training_town.")] = None,
     tasks: Annotated[str | None, typer.Option(help="Comma-separated tasks (corl2017: straight,one_curve,navigation,"
                                                    "navigation_dynamic).")] = None,
     weathers: Annotated[str | None, typer.Option(help="Comma-separated weather ids or names.")] = None,

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from brlcli.bench.metrics import paper_score
-from brlcli.bench.runner import run_episode
+from brlcli.bench.runner import run_episode, world_for
 from brlcli.bench.suites import EpisodeSpec, build_suite
 from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_bytes
@@ -37,10 +37,7 @@ class SuiteEvaluator:
         """Success, collision-free and Either shares and the Score over every episode of the suite."""
         results = []
         for spec in self.specs:
-            key = (spec.town, spec.vehicles, spec.pedestrians)
-            if key not in self._worlds:
-                self._worlds[key] = World(spec.town, vehicles=spec.vehicles, pedestrians=spec.pedestrians, seed=0)
-            results.append(run_episode(self._worlds[key], spec, policy, self.bench_seed)[0])
+            results.append(run_episode(world_for(self._worlds, spec, policy), spec, policy, self.bench_seed)[0])
         n = len(results)
         steps = sum(r["steps"] for r in results)
         success = sum(r["success"] for r in results) / n

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from brlcli.bench.metrics import FOOTPRINT_THRESHOLD as EITHER_THRESHOLD
+from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import DrivingEnv
 
 
@@ -36,12 +37,15 @@ def run_episode(env: DrivingEnv, policy: Callable[[np.ndarray], int], route: str
 
 
 def evaluate_lane_keeping(agent: Any, town: str = "town01", weather: int | str = 1, seed: int = 0,
-                          labeler: Callable[[np.ndarray], np.ndarray] | None = None) -> dict[str, Any]:
+                          labeler: Callable[[np.ndarray], np.ndarray] | None = None,
+                          camera: CameraConfig | None = None, routes: str = "lane_keeping") -> dict[str, Any]:
     """Greedy policy of `agent` (anything with `act(state, rng, greedy=True)`) on every lane-keeping route.
 
-    With a `labeler` (the segmentation net) the agent sees estimated labels, as in deployment on estimated input.
+    With a `labeler` (the segmentation net) the agent sees estimated labels, as in deployment on estimated input;
+    `camera` is the state camera the agent was trained with (default: CoRL2017's); `routes` the town's route set
+    (`lane_keeping`: the paper's test routes; `validation`: the routes choices are made on).
     """
-    env = DrivingEnv(town=town, weather=weather, routes="lane_keeping", labeler=labeler)
+    env = DrivingEnv(town=town, weather=weather, routes=routes, labeler=labeler, camera=camera)
     rng = np.random.default_rng(seed)
 
     def policy(obs: np.ndarray) -> int:
@@ -55,6 +59,6 @@ def evaluate_lane_keeping(agent: Any, town: str = "town01", weather: int | str =
                                               not e["collision_free"], e["distance_m"]) for e in episodes])
     for e in episodes:  # per-step series are summarised above; keep the JSON small
         del e["offroad"], e["otherlane"]
-    return {"town": town, "weather": weather, "episodes": episodes,
+    return {"town": town, "weather": weather, "routes": routes, "episodes": episodes,
             "success_rate": row["success"], "collision_free_rate": row["no_collision"],
             "either_share": row["either"], "score": row["score"], "distance_m": row["dist"]}

@@ -43,6 +43,11 @@ def state_vector(labels: np.ndarray) -> np.ndarray:
     return counts / counts.sum()
 
 
-def road_share(state: np.ndarray) -> float:
-    """Sum of the Road entries of a normalised state over the six regions."""
-    return float(np.asarray(state)[0::N_CATEGORIES].sum())
+ROAD_VIEW_CATEGORIES = {"road": (0,), "road+line": (0, 1)}
+"""What the reward's road view counts: Road entries only, or Road and Road-line entries (the authors' code)."""
+
+
+def road_share(state: np.ndarray, categories: tuple[int, ...] = (0,)) -> float:
+    """Sum of the given category entries (default Road) of a normalised state over the six regions."""
+    arr = np.asarray(state).reshape(N_REGIONS, N_CATEGORIES)
+    return float(arr[:, list(categories)].sum())

@@ -19,6 +19,7 @@ import numpy as np
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM, state_vector
 from brlcli.segnet import check_input_source, labeler_for
+from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import ACTIONS, FRAMES_PER_DECISION
 from brlcli.sim.vehicle import Control
 
@@ -88,6 +89,20 @@ def model_training_input(model_path: Path) -> str:
     return "gt"
 
 
+def model_camera(model_path: Path) -> CameraConfig | None:
+    """The state camera a BRL model was trained with (its config.json's camera_pitch_deg); None = the default."""
+    cfg = Path(model_path).parent / "config.json"
+    if not cfg.exists():
+        return None
+    try:
+        pitch = json.loads(cfg.read_text())["config"].get("camera_pitch_deg")
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
+        raise BrlInputError(f"{cfg} is not a brl training config") from None
+    if pitch is None or float(pitch) == CameraConfig().pitch_deg:
+        return None
+    return CameraConfig(pitch_deg=float(pitch))
+
+
 def setting_name(train_input: str, deploy_input: str) -> str:
     """TGDG, TGDE, TEDE or TEDG from the training and deployment inputs."""
     code = {"gt": "G", "estimated": "E"}
@@ -101,11 +116,13 @@ class StatePolicy:
     frames_per_decision = FRAMES_PER_DECISION
 
     def __init__(self, name: str, setting: str, act: Callable[[np.ndarray], int],
-                 labeler: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+                 labeler: Callable[[np.ndarray], np.ndarray] | None = None,
+                 camera: CameraConfig | None = None) -> None:
         self.name = name
         self.setting = setting
         self.act = act
         self.labeler = labeler
+        self.camera = None if camera == CameraConfig() else camera  # None: the bench's default camera
 
     def reset(self, spec: EpisodeSpec, world: Any) -> None:
         """Greedy state policy: nothing to reset."""
@@ -134,7 +151,7 @@ class BRLPolicy(StatePolicy):
             raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and "
                                 f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)}")
         super().__init__(name, setting_name(model_training_input(Path(model)), deploy), greedy_brl(self.agent),
-                         labeler_for(deploy, segnet))
+                         labeler_for(deploy, segnet), model_camera(Path(model)))
 
 
 class AutopilotPolicy:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from brlcli.features import road_share
+from brlcli.features import ROAD_VIEW_CATEGORIES, road_share
 
 
 @dataclass(frozen=True)
@@ -19,6 +19,14 @@ class RewardParams:
     target_speed_kmh: float = 20.0
     road_view_weight: float = 20.0
     road_view_min: float = 0.5
+    road_view: str = "road"
+    """Which state entries the road view counts: "road" (Road) or "road+line" (Road and Road-line, authors' code)."""
+
+    def __post_init__(self) -> None:
+        if self.road_view not in ROAD_VIEW_CATEGORIES:
+            raise ValueError(f"road_view must be one of {', '.join(ROAD_VIEW_CATEGORIES)}, got {self.road_view!r}")
+        if not self.target_speed_kmh > 0:
+            raise ValueError(f"target_speed_kmh must be > 0, got {self.target_speed_kmh}")
 
 
 def reward_terms(collided: bool, offroad: float, otherlane: float, speed_kmh: float, state: object,
@@ -38,7 +46,7 @@ def reward_terms(collided: bool, offroad: float, otherlane: float, speed_kmh: fl
             terms["speed"] = -params.r_reverse * rel
         elif speed_kmh < vt:
             terms["speed"] = -params.r_slow * rel
-    road = road_share(state)  # type: ignore[arg-type]
+    road = road_share(state, ROAD_VIEW_CATEGORIES[params.road_view])  # type: ignore[arg-type]
     if road < params.road_view_min:
         terms["road_view"] = params.road_view_weight * (road - 1.0)
     terms["total"] = sum(terms.values())

@@ -27,6 +27,7 @@ from brlcli.executor import Executor, report, run_tasks
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.reward import RewardParams
 from brlcli.segnet import check_input_source, labeler_for
+from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import ACTION_NAMES, DrivingEnv
 from brlcli.sim.weather import get_weather
 
@@ -36,6 +37,12 @@ LOG_COLUMNS = (
     "rho", "forward_speed_kmh", "intersection_offroad", "intersection_otherlane", "x", "y",
 )
 CHECKPOINT_VERSION = 1
+
+
+DEFAULT_AGENT_OVERRIDES: dict[str, Any] = {"init_scatter": 1e-3}
+"""Agent parameters a training run sets beyond `BRLParams()` (none of them is in the paper's Table I): the NIW
+prior scatter S0 = 1e-3 I, on the scale of the 30-number state, instead of the reference code's 0.1 I
+(docs/lane-keeping-study.md)."""
 
 
 @dataclass(frozen=True)
@@ -52,8 +59,13 @@ class TrainConfig:
     target_speed_kmh: float = 20.0
     evaluate: bool = True
     segnet: str | None = None  # the segmentation net for input "estimated" (None: the shipped one)
-    params: dict[str, Any] = field(default_factory=dict)
+    params: dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_AGENT_OVERRIDES))
     curve_every: int = 0  # evaluate greedily on the paper suite every N steps (learning_curve.csv); 0 = never
+    camera_pitch_deg: float = -15.0  # pitch of the state camera (deg, - = down); the authors' code uses -30
+    road_view: str = "road+line"  # the road-view reward counts "road" or "road+line" (authors' code) state entries
+    offroad_end: float | None = None  # end a training episode when the off-road share of the footprint exceeds it
+    start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m ...
+    start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
@@ -61,6 +73,12 @@ class TrainConfig:
             raise BrlInputError("--steps must be at least 1")
         if self.curve_every < 0:
             raise BrlInputError("--curve-every must be >= 0")
+        try:
+            self.reward_params()
+            self.camera()
+            DrivingEnv.check_episode_rules(self.offroad_end, self.start_offset_m, self.start_yaw_deg)
+        except ValueError as exc:
+            raise BrlInputError(f"bad training configuration: {exc}") from None
         if self.variant not in ("paper", "reference-code"):
             raise BrlInputError(f"unknown variant '{self.variant}'; choose paper or reference-code")
         get_weather(self.weather)
@@ -79,9 +97,18 @@ class TrainConfig:
         if extra:
             raise BrlInputError(f"unknown training config keys: {', '.join(sorted(extra))}")
         d = dict(d)
+        d.setdefault("road_view", "road")  # configs written before the option counted Road entries only
         if "route_kinds" in d:
             d["route_kinds"] = tuple(d["route_kinds"])
         return cls(**d)
+
+    def reward_params(self) -> RewardParams:
+        """The reward's parameters for this run."""
+        return RewardParams(target_speed_kmh=self.target_speed_kmh, road_view=self.road_view)
+
+    def camera(self) -> CameraConfig:
+        """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""
+        return CameraConfig(pitch_deg=self.camera_pitch_deg)
 
     def agent_params(self) -> BRLParams:
         """The agent's parameters for this run."""
@@ -118,7 +145,9 @@ def _labeler(cfg: TrainConfig) -> Callable[[np.ndarray], np.ndarray] | None:
 
 def _make_env(cfg: TrainConfig) -> DrivingEnv:
     return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training", kinds=cfg.route_kinds,
-                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh), labeler=_labeler(cfg))
+                      reward=cfg.reward_params(), labeler=_labeler(cfg), camera=cfg.camera(),
+                      offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
+                      start_yaw_deg=cfg.start_yaw_deg)
 
 
 def _log_row(step: int, episode: int, decision: int, action: int, reward: float, terms: dict, learn: Any,
@@ -173,6 +202,7 @@ class _Curve:
         self.path = run_dir / CURVE_FILE
         self.rows = [r for r in read_curve(self.path) if r["env_steps"] <= step] if self.path.exists() else []
         self.labeler = env.labeler
+        self.camera = cfg.camera()
         self.setting = "TGDG" if cfg.input == "gt" else "TEDE"
         self.evaluator = SuiteEvaluator("paper")
         self.eval_s = 0.0
@@ -182,7 +212,8 @@ class _Curve:
         from brlcli.policy import StatePolicy, greedy_brl
 
         t0 = time.perf_counter()
-        policy = StatePolicy("brl", self.setting, greedy_brl(agent), self.labeler)  # never the training generator
+        policy = StatePolicy("brl", self.setting, greedy_brl(agent), self.labeler,  # never the training generator
+                             self.camera)
         self.rows.append({"env_steps": step, **self.evaluator.evaluate(policy)})
         write_curve(self.path, self.rows)
         self.eval_s += time.perf_counter() - t0
@@ -283,7 +314,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     if cfg.evaluate:
         from brlcli.evaluate import evaluate_lane_keeping
 
-        ev = evaluate_lane_keeping(agent, town=cfg.town, weather=cfg.weather, labeler=_labeler(cfg))
+        ev = evaluate_lane_keeping(agent, town=cfg.town, weather=cfg.weather, labeler=_labeler(cfg),
+                                   camera=cfg.camera(), routes="validation")
         summary["eval"] = ev
     atomic_write_json(run_dir / "summary.json", {**provenance(cfg.to_dict()), "summary": summary})
     if progress:

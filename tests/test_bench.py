@@ -12,6 +12,7 @@ from brlcli.bench.runner import read_results, run_bench
 from brlcli.bench.suites import build_suite, parse_shard, shard, subset
 from brlcli.errors import BrlInputError
 from brlcli.policy import PolicySpec
+from brlcli.sim.town import load_town
 from brlcli.train import TrainConfig, train_run
 
 
@@ -34,6 +35,18 @@ def test_suite_sizes_follow_the_definitions() -> None:
     paper = build_suite("paper")
     assert {s.town for s in paper} == {"town01", "town02"} and {s.weather for s in paper} == {1, 4, 14}
     assert len({s.id for s in corl}) == len(corl)
+
+
+def test_validation_suite_is_the_paper_suite_on_validation_routes() -> None:
+    paper, val = build_suite("paper"), build_suite("validation")
+    n_routes = sum(len(load_town(t).validation_routes) for t in ("town01", "town02"))
+    assert len(val) == 3 * n_routes and 60 <= len(val) <= 72
+    assert {s.weather for s in val} == {1, 4, 14} and {s.town for s in val} == {"town01", "town02"}
+    assert {(s.town, s.condition) for s in val} == {(s.town, s.condition) for s in paper}
+    assert {s.task for s in val if s.town == "town02"} == {"straight", "right_curve", "left_curve"}
+    assert not {(s.start, s.goal) for s in val} & {(s.start, s.goal) for s in paper}
+    assert all(s.suite == "validation" and s.id.startswith("validation/") for s in val)
+    assert len(build_suite("validation", conditions="unseen_town", tasks="straight", weathers="1")) == 4
 
 
 def test_subsets_and_shards_are_deterministic_partitions() -> None:

@@ -125,6 +125,23 @@ def test_seeds_trained_on_ray_equal_local_ones_and_resume(tmp_path: Path, ray_in
             assert (tmp_path / "ray" / f"seed_{s}" / name).read_bytes() == a, (s, name)
 
 
+def test_sweep_on_ray_equals_local(tmp_path: Path, ray_instance) -> None:
+    from brlcli.sweep import plan_sweep, run_sweep
+
+    grid = tmp_path / "grid.toml"
+    grid.write_text("[base]\nsteps = 60\n[variants.a]\n[variants.b]\nparams = { gamma = 0.8 }\n")
+    plan = plan_sweep(grid, [0, 1], routes="validation", episodes="1")
+    run_sweep(plan, tmp_path / "local", workers=1)
+    seen: list = []
+    run_sweep(plan, tmp_path / "ray", executor=Executor("ray"), progress=seen.append)
+    assert (tmp_path / "ray" / "sweep.csv").read_bytes() == (tmp_path / "local" / "sweep.csv").read_bytes()
+    assert {m["kind"] for m in seen} >= {"step", "trained", "evaluated"}
+    for v in ("a", "b"):
+        for s in (0, 1):
+            name = f"{v}/seed_{s}/model.npz"
+            assert (tmp_path / "ray" / name).read_bytes() == (tmp_path / "local" / name).read_bytes(), name
+
+
 def test_bad_executor_options_fail_before_anything_runs() -> None:
     for kwargs in ({"kind": "spark"}, {"kind": "local", "ray_address": "10.0.0.1:6379"}, {"workers": 0}):
         with pytest.raises(BrlInputError):

@@ -355,3 +355,60 @@ def test_route_project_sign_convention(town_net):
     assert lat == pytest.approx(1.5, abs=1e-6)
     s, lat = route.project(*(np.asarray(spec.start[:2]) + 10.0 * fwd - 2.0 * right))
     assert (s, lat) == pytest.approx((10.0, -2.0), abs=1e-6)
+
+
+# ------------------------------------------------------------------------------------------ validation routes
+
+
+def test_validation_routes_are_lane_keeping_routes_of_every_kind(town_net):
+    town, net = town_net
+    assert {r.kind for r in town.validation_routes} == set(ROUTE_KINDS)
+    assert 3 <= len(town.validation_routes) // len(ROUTE_KINDS) <= 4
+    expected = {"straight": 0.0, "right_curve": -90.0, "left_curve": 90.0}
+    for spec in town.validation_routes:
+        assert _wrap(spec.goal[2] - spec.start[2]) == pytest.approx(expected[spec.kind], abs=1.0), spec.name
+        route = net.route(spec.start, spec.goal)
+        assert not route.commands, f"{spec.name}: a validation route must not cross a junction"
+        assert route.length_m > 30.0
+
+
+def test_validation_routes_share_no_pose_and_their_straights_no_road(town_net):
+    """No validation start or goal within 3.9 m of a training or test one; validation straights keep 8 m from every
+    training and test route (so neither direction of a used stretch); curves may share a corner's arc."""
+    from brlcli.sim.towngen import route_points
+
+    town, net = town_net
+    taken = [*town.training_routes, *town.lane_keeping_routes]
+    names = [r.name for r in [*taken, *town.validation_routes]]
+    assert len(set(names)) == len(names)
+    poses = np.array([p[:2] for r in taken for p in (r.start, r.goal)])
+    taken_pts = np.concatenate([route_points(net, r.start, r.goal) for r in taken])
+    for spec in town.validation_routes:
+        for pose in (spec.start, spec.goal):
+            assert np.linalg.norm(poses - np.array(pose[:2]), axis=1).min() >= 3.9, spec.name
+        if spec.kind == "straight":
+            pts = route_points(net, spec.start, spec.goal)
+            gap = np.linalg.norm(pts[:, None] - taken_pts[None], axis=2).min()
+            assert gap > 8.0, f"{spec.name} comes within {gap:.1f} m of a training or test route"
+
+
+def test_town_file_without_validation_routes_loads_and_says_so(tmp_path):
+    raw = _raw()
+    del raw["routes"]["validation"]
+    town = load_town(_write(tmp_path, raw))
+    assert town.validation_routes == ()
+    assert len(town.route_set("lane_keeping")) == len(town.lane_keeping_routes)
+    with pytest.raises(BrlInputError, match="has no validation routes"):
+        town.route_set("validation")
+    with pytest.raises(BrlInputError, match="unknown route set"):
+        town.route_set("holdout")
+
+
+@pytest.mark.slow
+def test_towngen_reproduces_the_shipped_town():
+    """The generator is deterministic: it rebuilds the shipped town02 (the faster one) exactly."""
+    from brlcli.sim.towngen import generate
+
+    doc = generate("town02")
+    shipped = json.loads((TOWNS_DIR / "town02.json").read_text(encoding="utf-8"))
+    assert json.loads(json.dumps(doc)) == shipped

@@ -130,3 +130,15 @@ def test_learning_curve_evaluations_do_not_change_training(tmp_path: Path, monke
     rows = read_curve(tmp_path / "curve" / "learning_curve.csv")
     assert [r["env_steps"] for r in rows] == [30, 60] and all(r["episodes"] == 2 for r in rows)
     assert all(0.0 <= r["success"] <= 1.0 and 0.0 <= r["either"] <= 1.0 for r in rows)
+
+
+def test_train_summary_line_reports_either_and_score_beside_success() -> None:
+    """A model that drives on the sidewalk must not read as just 'success 100 %'."""
+    from brlcli.cli import train_summary_line
+
+    s = {"seed": 3, "steps": 4500, "episodes": 40, "components": 12, "steps_per_s": 150.0,
+         "eval": {"town": "town01", "routes": "validation", "success_rate": 1.0, "either_share": 0.627,
+                  "score": 0.79}}
+    line = train_summary_line(s)
+    assert "lane-keeping success 100%  Either 62.7%  Score 0.79 (town01 validation routes)" in line
+    assert "Either" not in train_summary_line({**s, "eval": None})

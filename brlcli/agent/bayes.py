@@ -3,23 +3,34 @@
 Where each paper equation lives (the details the paper leaves open follow docs/brl-math.md):
 
 - p(s|m), the NIW posterior predictive Student-t with dof nu' = nu - D + 1 and scale
-  Sigma = (kappa + 1) / (kappa nu') S: `student_t_logpdf` (stateless) and `BayesianAgent._log_lik` (hot path,
-  all components in one batched pass), exposed as `log_likelihoods(agent, state)`. Always in log space.
-- eq. 2 (offset qhat), eq. 3 (p(m|a)), eq. 4 (p(a)): `BayesianAgent._probability_tables`.
-- eq. 1 (p(a|s)): `BayesianAgent.action_probabilities`.
+  Sigma = (kappa + 1) / (kappa nu') S: `student_t_logpdf` (stateless, numpy) and, on the hot path,
+  `_kernels.evaluate` (all components in one compiled pass), exposed as `log_likelihoods(agent, state)`.
+  Always in log space.
+- eq. 2 (offset qhat), eq. 3 (p(m|a)), eq. 4 (p(a)): `_kernels.tables` (`BayesianAgent._probability_tables`).
+- eq. 1 (p(a|s)): `_kernels.action_probs` (`BayesianAgent.action_probabilities`).
 - eq. 11 (tau-greedy behaviour policy): `BayesianAgent.act`.
-- Algorithm 1 with eqs. 5 (TD error), 6 (a'), 7 (m' via p(m|a',s')), 9 (weight w), 10 (p(m|not a, s)),
-  8 (Q update), the fractional NIW update (`niw_update`, `chol_rank1_update`) and component creation:
-  `BayesianAgent.learn`; the schedules X <- X + rate (final - X) close each learn() call.
+- Algorithm 1 with eqs. 5 (TD error), 6 (a'), 7 (m' via p(m|a',s')), 9 (weight w), 10 (p(m|not a, s)):
+  `_kernels.decide`; 8 (Q update), the fractional NIW update (`niw_update`, `chol_rank1_update`,
+  `_kernels.niw_absorb`) and component creation: `BayesianAgent.learn`; the schedules
+  X <- X + rate (final - X) close each learn() call.
 
 Numerics: densities are log-densities shifted by their maximum before they enter a normalised product
 (log-sum-exp); a zero normaliser falls back to the uniform distribution; each component keeps its scatter S,
-the Cholesky factor L of S (rank-1 updated) and, as a cache refreshed after each change, L^-1, so the
-likelihoods of all M components are one batched matrix-vector product and no Python loop runs over M.
+the Cholesky factor L of S (rank-1 updated) and, as caches refreshed after each change (`_refresh`), L^-1
+(packed lower triangle) and the Student-t constants. No Python loop runs over M or D on the hot path.
+
+Speed (issue 11): the hot path is a handful of compiled kernels (`brlcli.agent._kernels`, numba). The
+log-likelihoods and l_inf distances of the last two states seen are cached (keyed on the state's bytes) and
+patched per component when a component changes, so in the training loop `act(s_t)` reuses the pass `learn`
+made for s_t as s_{t+1}, and `learn` reuses the pass `act` made for s_t: one pass over M per step. A patched
+entry is bitwise equal to a fresh pass (same kernel code per (state, component) pair), so the cache never
+changes a result. The Q-derived tables (eqs. 2-4) cost O(M |A|) and are recomputed per call, so writes to `_q`
+are always seen.
 """
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 import os
@@ -28,9 +39,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.linalg import solve_triangular
 from scipy.special import gammaln
 
+from brlcli.agent import _kernels
 from brlcli.agent.params import BRLParams
 from brlcli.errors import BrlInputError
 from brlcli.npzio import save_npz
@@ -42,6 +53,9 @@ _INITIAL_CAPACITY = 16
 """Preallocated component slots of a new agent; doubled on demand up to `max_components`."""
 
 WEIGHT_CASES = ("good", "bad", "neutral", "created", "capacity")
+
+_CACHE_ROWS = 2
+"""States whose log-likelihoods the agent keeps (s_t and s_{t+1} of the current learning step)."""
 
 
 @dataclass(frozen=True)
@@ -110,26 +124,19 @@ def student_t_logpdf(states: np.ndarray, means: np.ndarray, chol: np.ndarray, ka
     return out[0] if single else out
 
 
+def _work_copy(arr: np.ndarray) -> tuple[np.ndarray, bool]:
+    """arr itself when a kernel can write it in place (C-contiguous float64), else a copy; and whether copied."""
+    if isinstance(arr, np.ndarray) and arr.dtype == np.float64 and arr.flags.c_contiguous and arr.flags.writeable:
+        return arr, False
+    return np.array(arr, dtype=float), True
+
+
 def chol_rank1_update(chol: np.ndarray, x: np.ndarray) -> None:
     """In place: replace lower-triangular chol (D, D) by the Cholesky factor of chol chol^T + x x^T."""
-    x = np.array(x, dtype=float)
-    dim = x.shape[0]
-    for k in range(dim):
-        xk = float(x[k])
-        if xk == 0.0:  # the rotation is the identity
-            continue
-        lkk = float(chol[k, k])
-        r = math.hypot(lkk, xk)
-        c = r / lkk
-        s = xk / lkk
-        chol[k, k] = r
-        if k + 1 < dim:
-            col = chol[k + 1:, k]
-            col += s * x[k + 1:]
-            col /= c
-            tail = x[k + 1:]
-            tail *= c
-            tail -= s * col
+    work, copied = _work_copy(chol)
+    _kernels.chol_rank1(work, np.array(x, dtype=float).reshape(-1))
+    if copied:
+        chol[...] = work
 
 
 def niw_update(mean: np.ndarray, kappa: float, nu: float, scatter: np.ndarray, chol: np.ndarray,
@@ -139,31 +146,13 @@ def niw_update(mean: np.ndarray, kappa: float, nu: float, scatter: np.ndarray, c
         raise ValueError(f"NIW update weight must be finite and >= 0, got {w}")
     if w == 0.0:
         return kappa, nu
-    d = np.asarray(x, dtype=float) - mean
-    coef = kappa * w / (kappa + w)  # uses the old kappa; d uses the old mean
-    scatter += coef * np.outer(d, d)
-    chol_rank1_update(chol, math.sqrt(coef) * d)
-    mean += (w / (kappa + w)) * d
+    works = [_work_copy(a) for a in (mean, scatter, chol)]
+    (m_work, _), (s_work, _), (c_work, _) = works
+    _kernels.niw_absorb(m_work, s_work, c_work, np.array(x, dtype=float).reshape(-1), float(w), float(kappa))
+    for target, (work, copied) in zip((mean, scatter, chol), works, strict=True):
+        if copied:
+            target[...] = work
     return kappa + w, nu + w
-
-
-def _normalise(x: np.ndarray, axis: int = -1) -> np.ndarray:
-    """x / sum(x) along axis; where the sum is not positive and finite, the uniform distribution."""
-    total = x.sum(axis=axis, keepdims=True)
-    ok = (total > 0.0) & np.isfinite(total)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = x / total
-    if not ok.all():
-        out = np.where(ok, out, 1.0 / x.shape[axis])
-    return out
-
-
-def _shifted_likelihood(log_lik: np.ndarray) -> np.ndarray:
-    """exp(log_lik - max log_lik): likelihoods up to a common factor (all ones if nothing is finite)."""
-    top = log_lik.max()
-    if not math.isfinite(top):
-        return np.ones_like(log_lik)
-    return np.exp(log_lik - top)
 
 
 def _validated_state(state: Any, dim: int, what: str) -> np.ndarray:
@@ -215,10 +204,8 @@ class BayesianAgent:
             "_nu": np.zeros(capacity),
             "_scatter": np.zeros((capacity, dim, dim)),
             "_chol": np.zeros((capacity, dim, dim)),
-            "_chol_inv": np.zeros((capacity, dim, dim)),
-            "_log_norm": np.zeros(capacity),
-            "_inv_scale": np.zeros(capacity),
-            "_dof": np.ones(capacity),
+            "_chol_inv_packed": np.zeros((capacity, dim * (dim + 1) // 2)),  # L^-1, lower triangle by rows
+            "_t_params": np.tile([0.0, 1.0, 1.0], (capacity, 1)),  # (log normaliser, inv_scale, dof)
         }
         for name, arr in new.items():
             if old is not None and n:
@@ -228,24 +215,22 @@ class BayesianAgent:
         if old is not None and n:
             q[:, :n] = self._q[:, :n]
         self._q = q
+        # likelihood cache: rows of (state, log p(s|m), ||s - mu_m||_inf), always valid for m < n
+        self._cache_states = np.zeros((_CACHE_ROWS, dim))
+        self._cache_ll = np.zeros((_CACHE_ROWS, capacity))
+        self._cache_dist = np.zeros((_CACHE_ROWS, capacity))
+        self._cache_keys: list[bytes | None] = [None] * _CACHE_ROWS
+        self._cache_last = 0
 
     def _capacity(self) -> int:
         """Number of preallocated component slots."""
         return self._mean.shape[0]
 
     def _refresh(self, m: int) -> None:
-        """Recompute the cached L^-1, log normaliser and Mahalanobis scale of component m from (L, kappa, nu)."""
-        dim = self._dim
-        chol = self._chol[m]
-        self._chol_inv[m] = solve_triangular(chol, np.eye(dim), lower=True, check_finite=False)
-        kappa, nu = float(self._kappa[m]), float(self._nu[m])
-        dof = nu - dim + 1.0
-        scale = (kappa + 1.0) / (kappa * dof)
-        log_det_sigma = dim * math.log(scale) + 2.0 * float(np.log(np.diagonal(chol)).sum())
-        self._log_norm[m] = (math.lgamma(0.5 * (dof + dim)) - math.lgamma(0.5 * dof)
-                             - 0.5 * dim * math.log(dof * math.pi) - 0.5 * log_det_sigma)
-        self._inv_scale[m] = 1.0 / scale
-        self._dof[m] = dof
+        """Recompute the cached L^-1 and Student-t constants of component m from (L, kappa, nu); patch the cache."""
+        _kernels.refresh(self._chol, self._kappa, self._nu, self._chol_inv_packed, self._t_params, m)
+        _kernels.evaluate(self._cache_states, 0, _CACHE_ROWS, self._mean, self._chol_inv_packed, self._t_params,
+                          m, m + 1, self._cache_ll, self._cache_dist)
 
     def _add_component(self, mean: np.ndarray) -> int:
         """Append a component at `mean` (nu = D, kappa = D + 1, S = init_scatter I, Q = init_q); return its index."""
@@ -262,6 +247,32 @@ class BayesianAgent:
         self._n = m + 1
         self._refresh(m)
         return m
+
+    def _checked(self, state: Any, what: str) -> tuple[np.ndarray, bytes, int]:
+        """Validate a state (shape (D,), finite); return it as float64, its cache key and cache row (-1: absent)."""
+        arr = state
+        if type(arr) is not np.ndarray or arr.dtype != np.float64:
+            arr = np.asarray(state, dtype=float)
+        if arr.shape != (self._dim,):
+            raise ValueError(f"{what} must have shape ({self._dim},), got {arr.shape}")
+        key = arr.tobytes()
+        keys = self._cache_keys
+        row = 0 if keys[0] == key else 1 if keys[1] == key else -1
+        if row < 0 and not _kernels.all_finite(np.ascontiguousarray(arr)):  # cached states were checked
+            raise ValueError(f"{what} contains NaN or infinity")
+        return arr, key, row
+
+    def _cached_row(self, arr: np.ndarray, key: bytes, row: int) -> int:
+        """Cache row holding log p(s|m) and the l_inf distances of state arr (computed now if absent)."""
+        if row < 0:
+            row = 1 - self._cache_last  # the least recently used row
+            self._cache_keys[row] = None
+            self._cache_states[row] = arr
+            _kernels.evaluate(self._cache_states, row, row + 1, self._mean, self._chol_inv_packed, self._t_params,
+                              0, self._n, self._cache_ll, self._cache_dist)
+            self._cache_keys[row] = key
+        self._cache_last = row
+        return row
 
     # -- read-only state -------------------------------------------------------------------------------------
 
@@ -338,56 +349,45 @@ class BayesianAgent:
     # -- probabilities ---------------------------------------------------------------------------------------
 
     def _log_lik(self, states: np.ndarray) -> np.ndarray:
-        """log p(s|m) for states (N, D) and every component in one batched pass: (N, M)."""
-        n = self._n
-        diff = states[:, None, :] - self._mean[:n]
-        z = np.matmul(self._chol_inv[:n], diff[..., None])[..., 0]
-        maha = np.einsum("nmd,nmd->nm", z, z) * self._inv_scale[:n]
-        dof = self._dof[:n]
-        return self._log_norm[:n] - 0.5 * (dof + self._dim) * np.log1p(maha / dof)
+        """log p(s|m) for states (N, D) and every component in one compiled pass: (N, M)."""
+        states = np.array(states, dtype=float, ndmin=2)
+        n_states = states.shape[0]
+        out = np.empty((n_states, self._n))
+        _kernels.evaluate(states, 0, n_states, self._mean, self._chol_inv_packed, self._t_params, 0, self._n, out,
+                          np.empty((n_states, self._n)))
+        return out
 
     def _probability_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(p(m|a) as (M, A), p(a) as (A,), p(m) as (M,)) from Q + qhat (eqs. 2-4)."""
-        q = self._q[:, :self._n]
-        q_min = float(q.min())
-        q_hat = abs(q_min) / (1.0 + abs(q_min)) - q_min
-        shifted = q.T + q_hat  # (M, A), every entry >= |min Q| / (1 + |min Q|) >= 0
-        axis = 0 if self._params.variant == "paper" else 1  # reference code normalises over actions
-        p_m_given_a = _normalise(shifted, axis=axis)
-        p_a = _normalise(shifted.sum(axis=0))
-        p_m = _normalise(shifted.sum(axis=1))
-        return p_m_given_a, p_a, p_m
-
-    @staticmethod
-    def _p_action_given_state(lik: np.ndarray, p_m_given_a: np.ndarray, p_a: np.ndarray) -> np.ndarray:
-        """p(a|s) ∝ p(a) sum_m p(s|m) p(m|a) (eq. 1), lik = likelihoods up to a common factor."""
-        return _normalise(p_a * (lik @ p_m_given_a))
+        # the reference code normalises over actions
+        return _kernels.tables(self._q, self._n, self._params.variant != "paper")
 
     def action_probabilities(self, state: np.ndarray) -> np.ndarray:
         """p(a|s) for every action (eq. 1); sums to 1."""
-        s = _validated_state(state, self._dim, "state")
-        lik = _shifted_likelihood(self._log_lik(s[None, :])[0])
-        p_m_given_a, p_a, _ = self._probability_tables()
-        return self._p_action_given_state(lik, p_m_given_a, p_a)
+        row = self._cached_row(*self._checked(state, "state"))
+        return _kernels.action_probs(self._cache_ll[row], self._q, self._n, self._params.variant != "paper")
 
     def act(self, state: np.ndarray, rng: np.random.Generator, greedy: bool = False) -> int:
         """Behaviour policy (eq. 11): the greedy action gets (1 - tau)/|A| + tau, the others (1 - tau)/|A|."""
         greedy_action = int(np.argmax(self.action_probabilities(state)))
         if greedy:
             return greedy_action
-        policy = np.full(self._n_actions, (1.0 - self._tau) / self._n_actions)
-        policy[greedy_action] += self._tau
-        cumulative = np.cumsum(policy)
-        u = rng.random() * cumulative[-1]
-        return int(min(np.searchsorted(cumulative, u, side="right"), self._n_actions - 1))
+        n_act = self._n_actions
+        base = (1.0 - self._tau) / n_act
+        cumulative, total = [], 0.0
+        for a in range(n_act):  # the running sum of np.cumsum, over the |A| actions
+            total += base + self._tau if a == greedy_action else base
+            cumulative.append(total)
+        u = rng.random() * total
+        return min(bisect.bisect_right(cumulative, u), n_act - 1)
 
     # -- learning --------------------------------------------------------------------------------------------
 
     def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray) -> LearnStep:
         """One step of Algorithm 1 on (s_t, a_t, r_t, s_{t+1}); see docs/brl-math.md 'One learning step'."""
         p = self._params
-        s_t = _validated_state(state, self._dim, "state")
-        s_next = _validated_state(next_state, self._dim, "next_state")
+        checked_t = self._checked(state, "state")
+        checked_next = self._checked(next_state, "next_state")
         if isinstance(action, bool) or not isinstance(action, int | np.integer) or not 0 <= action < self._n_actions:
             raise ValueError(f"action must be an integer in [0, {self._n_actions}), got {action!r}")
         a_t = int(action)
@@ -395,33 +395,24 @@ class BayesianAgent:
         if not math.isfinite(reward):
             raise ValueError(f"reward must be finite, got {reward}")
 
-        log_lik = self._log_lik(np.stack([s_t, s_next]))  # (2, M)
-        p_m_given_a, p_a, p_m = self._probability_tables()
-        with np.errstate(divide="ignore"):
-            log_p_m_given_a = np.log(p_m_given_a)
-
-        # 1. a' = argmax_a p(a|s_{t+1}) (eq. 6), m' = argmax_m p(m|a', s_{t+1}) (eq. 7)
-        lik_next = _shifted_likelihood(log_lik[1])
-        a_next = int(np.argmax(self._p_action_given_state(lik_next, p_m_given_a, p_a)))
-        m_next = int(np.argmax(log_lik[1] + log_p_m_given_a[:, a_next]))
-        # 2. m_t = l_inf-nearest component to s_t, d_t its distance
-        dist = np.abs(self._mean[:self._n] - s_t).max(axis=1)
-        m_t = int(np.argmin(dist))
-        d_t = float(dist[m_t])
-        # 3. TD error (eq. 5); the reference code takes m_t = argmax_m p(m|a_t, s_t) here
-        m_delta = m_t if p.variant == "paper" else int(np.argmax(log_lik[0] + log_p_m_given_a[:, a_t]))
-        td_error = reward + p.gamma * float(self._q[a_next, m_next]) - float(self._q[a_t, m_delta])
+        row_t = self._cached_row(*checked_t)
+        row_next = row_t if checked_next[1] == checked_t[1] else self._cached_row(*checked_next)
+        # steps 1-3 and the weight of eq. 9: a', m', m_t, d_t, the TD error (eq. 5) and w for m_t
+        td_error, m_t, d_t, weight, case = _kernels.decide(
+            self._cache_ll, self._cache_dist, row_t, row_next, self._q, self._n, a_t, reward, p.gamma, p.T_l,
+            p.T_u, p.variant != "paper")
+        m_t = int(m_t)
+        weight = float(weight)
+        s_t = self._cache_states[row_t].copy()
 
         if d_t < self._rho or td_error > p.T_l:
-            weight, case = self._weight(m_t, a_t, td_error, log_lik[0], p_m_given_a, p_m)
             self._update(m_t, a_t, s_t, td_error, weight)
-            step = LearnStep(td_error, m_t, False, weight, case, 0)
+            step = LearnStep(td_error, m_t, False, weight, WEIGHT_CASES[case], 0)
         elif self._n < p.max_components:
             m_new = self._add_component(s_t)
             self._q[a_t, m_new] = p.new_q_taken
             step = LearnStep(td_error, m_new, True, math.nan, "created", 0)
         elif p.at_capacity == "merge":
-            weight, _ = self._weight(m_t, a_t, td_error, log_lik[0], p_m_given_a, p_m)
             self._update(m_t, a_t, s_t, td_error, weight)
             step = LearnStep(td_error, m_t, False, weight, "capacity", 0)
         else:  # "skip"
@@ -434,26 +425,15 @@ class BayesianAgent:
         self._steps += 1
         return LearnStep(step.td_error, step.component, step.created, step.weight, step.weight_case, self._n)
 
-    def _weight(self, m_t: int, a_t: int, td_error: float, log_lik_t: np.ndarray, p_m_given_a: np.ndarray,
-                p_m: np.ndarray) -> tuple[float, str]:
-        """The weight w of eq. 9 for component m_t, and its case name."""
-        p = self._params
-        lik = _shifted_likelihood(log_lik_t)
-        if td_error > p.T_u:
-            return float(_normalise(lik * p_m_given_a[:, a_t])[m_t]), "good"
-        if td_error < p.T_l:
-            if self._n == 1:  # p(m|a) = 1 makes eq. 10 0/0; defined as 1 for the only component
-                return 1.0, "bad"
-            return float(_normalise(lik * (1.0 - p_m_given_a[:, a_t]))[m_t]), "bad"
-        return float(_normalise(lik * p_m)[m_t]), "neutral"
-
     def _update(self, m: int, a_t: int, s_t: np.ndarray, td_error: float, weight: float) -> None:
         """Q update (eq. 8) and fractional NIW update of component m with weight w."""
         self._q[a_t, m] += self._alpha * weight * td_error
-        kappa, nu = niw_update(self._mean[m], float(self._kappa[m]), float(self._nu[m]), self._scatter[m],
-                               self._chol[m], s_t, weight)
-        self._kappa[m] = kappa
-        self._nu[m] = nu
+        if weight == 0.0:
+            return
+        kappa = float(self._kappa[m])
+        _kernels.niw_absorb(self._mean[m], self._scatter[m], self._chol[m], s_t, weight, kappa)
+        self._kappa[m] = kappa + weight
+        self._nu[m] += weight
         self._refresh(m)
 
     # -- persistence -----------------------------------------------------------------------------------------

@@ -87,6 +87,16 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
     return result, log
 
 
+def world_for(cache: dict[tuple, World], spec: EpisodeSpec, policy: Policy) -> World:
+    """The cached world for an episode's town and traffic, seen through the policy's camera (`policy.camera`, a
+    CameraConfig, for state policies trained with another camera; default CoRL2017's)."""
+    camera = getattr(policy, "camera", None)
+    key = (spec.town, spec.vehicles, spec.pedestrians, camera)
+    if key not in cache:
+        cache[key] = World(spec.town, vehicles=spec.vehicles, pedestrians=spec.pedestrians, seed=0, camera=camera)
+    return cache[key]
+
+
 class _Worker:
     """Per-process cache: one world per (town, traffic) and one policy per policy spec."""
 
@@ -102,10 +112,8 @@ class _Worker:
         spec = EpisodeSpec(**{**spec_dict, "start": tuple(spec_dict["start"]), "goal": tuple(spec_dict["goal"])})
         if p_idx not in self.policies:
             self.policies[p_idx] = self.policy_specs[p_idx].build()
-        key = (spec.town, spec.vehicles, spec.pedestrians)
-        if key not in self.worlds:
-            self.worlds[key] = World(spec.town, vehicles=spec.vehicles, pedestrians=spec.pedestrians, seed=0)
-        result, log = run_episode(self.worlds[key], spec, self.policies[p_idx], self.seed)
+        policy = self.policies[p_idx]
+        result, log = run_episode(world_for(self.worlds, spec, policy), spec, policy, self.seed)
         result["frames_file"] = f"frames/{_safe(result['policy'])}/{_safe(spec.id)}.npz"
         return result, npz_bytes(log, compress=True)
 

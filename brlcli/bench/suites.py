@@ -13,8 +13,10 @@ from brlcli.sim.roadnet import RoadNetwork
 from brlcli.sim.town import load_town
 from brlcli.sim.weather import TEST_WEATHERS, TRAIN_WEATHERS, get_weather
 
-SUITES = ("paper", "corl2017")
-SUITE_VERSION = {"paper": 1, "corl2017": 1}
+SUITES = ("paper", "validation", "corl2017")
+SUITE_VERSION = {"paper": 1, "validation": 1, "corl2017": 1}
+#: Lane-keeping suites: suite -> the town route set it drives (same towns, weathers and metrics as the paper's).
+LANE_KEEPING_SUITES = {"paper": "lane_keeping", "validation": "validation"}
 PAPER_TOWNS = ("town02", "town01")
 PAPER_WEATHERS = (1, 4, 14)
 CORL_TASKS = ("straight", "one_curve", "navigation", "navigation_dynamic")
@@ -70,19 +72,28 @@ def _parse_list(text: str | None, allowed: tuple[str, ...], what: str) -> tuple[
     return items
 
 
-def paper_suite(weathers: tuple[int, ...] | None = None, towns: tuple[str, ...] | None = None) -> list[EpisodeSpec]:
-    """The paper's lane-keeping test routes (straight, right and left curve) in both towns and three weathers."""
+def paper_suite(weathers: tuple[int, ...] | None = None, towns: tuple[str, ...] | None = None,
+                suite: str = "paper") -> list[EpisodeSpec]:
+    """The paper's lane-keeping test routes (straight, right and left curve) in both towns and three weathers;
+    `suite="validation"` drives the towns' validation routes instead (same towns, weathers and metrics)."""
     specs = []
     for town_name in towns or PAPER_TOWNS:
         town = load_town(town_name)
         net = RoadNetwork(town)
         condition = "training_town" if town_name == "town01" else "unseen_town"
+        routes = town.route_set(LANE_KEEPING_SUITES[suite])
         for w in weathers or PAPER_WEATHERS:
-            for i, r in enumerate(town.lane_keeping_routes):
+            for i, r in enumerate(routes):
                 length = net.route(r.start, r.goal).length_m
-                specs.append(EpisodeSpec("paper", condition, r.kind, town.name, int(w), i, r.start, r.goal,
+                specs.append(EpisodeSpec(suite, condition, r.kind, town.name, int(w), i, r.start, r.goal,
                                          round(length, 3), route_timeout_s(length)))
     return specs
+
+
+def validation_suite(weathers: tuple[int, ...] | None = None,
+                     towns: tuple[str, ...] | None = None) -> list[EpisodeSpec]:
+    """The paper's suite on the towns' validation routes (for model selection; the test routes stay unseen)."""
+    return paper_suite(weathers, towns, suite="validation")
 
 
 def corl_suite(conditions: tuple[str, ...] | None = None, tasks: tuple[str, ...] | None = None,
@@ -117,14 +128,14 @@ def build_suite(suite: str, conditions: str | None = None, tasks: str | None = N
     if suite not in SUITES:
         raise BrlInputError(f"unknown suite '{suite}'; choose from {', '.join(SUITES)}")
     wl = None if weathers is None else tuple(get_weather(w.strip()).id for w in weathers.split(",") if w.strip())
-    if suite == "paper":
+    if suite in LANE_KEEPING_SUITES:
         if conditions is not None or tasks is not None:
             kinds = _parse_list(tasks, ("straight", "right_curve", "left_curve"), "task")
             conds = _parse_list(conditions, ("unseen_town", "training_town"), "condition")
             towns = None if conds is None else tuple("town01" if c == "training_town" else "town02" for c in conds)
-            specs = paper_suite(wl, towns)
+            specs = paper_suite(wl, towns, suite)
             return [s for s in specs if kinds is None or s.task in kinds]
-        return paper_suite(wl)
+        return paper_suite(wl, suite=suite)
     conds = _parse_list(conditions, tuple(CORL_CONDITIONS), "condition")
     task_list = _parse_list(tasks, CORL_TASKS, "task")
     specs = corl_suite(conds, task_list, wl)

@@ -22,7 +22,7 @@ from brlcli.report.published import CORL_CONDITIONS
 
 FORMATS: tuple[str, ...] = ("md", "tex", "csv", "html")
 """Output formats: report.md (+ PNGs), tables/*.tex, tables/*.csv, report.html (self-contained)."""
-REPORTED_SUITES: tuple[str, ...] = ("paper", "corl2017")
+REPORTED_SUITES: tuple[str, ...] = ("paper", "validation", "corl2017")
 FRAME_KEYS = ("intersection_offroad", "intersection_otherlane")
 
 
@@ -67,7 +67,21 @@ def _lane_shares(data: tb.PaperData, notes: list[str]) -> list[Any]:
 
 
 def _paper_section(episodes: list[dict[str, Any]], images: dict[str, Callable[[], bytes]], notes: list[str],
-                   summary: list[dict[str, Any]], plots: bool) -> tb.Section:
+                   summary: list[dict[str, Any]], plots: bool, suite: str = "paper") -> tb.Section:
+    if suite != "paper":  # the paper's tables on another route set: own table keys and figure files
+        own_images: dict[str, Callable[[], bytes]] = {}
+        own_summary: list[dict[str, Any]] = []
+        section = _paper_section(episodes, own_images, notes, own_summary, plots, "paper")
+        section.title = "The paper's test suite on the validation routes (model selection)"
+        section.text += (" Validation routes (routes.validation of the towns), not the paper's test routes: published "
+                         "rows are the test routes' figures, for orientation only.")
+        for table in section.tables:
+            table.key, table.title = f"{suite}_{table.key}", f"Validation routes: {table.title}"
+        section.figures = [tb.Figure(f"{suite}_{f.file}", f"Validation routes: {f.title}", f.caption)
+                           for f in section.figures]
+        images.update({f"{suite}_{name}": make for name, make in own_images.items()})
+        summary.extend({**row, "suite": suite} for row in own_summary)
+        return section
     data = tb.paper_data(episodes)
     posts = tb.posteriors(data)
     conditions = sorted({(str(ep["condition"]), str(ep["town"])) for ep in episodes})
@@ -158,8 +172,10 @@ def assemble(results: Results, runs: list[TrainingRun], plots: bool, curves: lis
     suites = results.suites()
     if "paper" in suites:
         sections.append(_paper_section(results.of_suite("paper"), images, notes, summary, plots))
-    else:
+    elif "validation" not in suites:
         notes.append("No results of the paper's test suite in the inputs: its table is not reported.")
+    if "validation" in suites:
+        sections.append(_paper_section(results.of_suite("validation"), images, notes, summary, plots, "validation"))
     if "corl2017" in suites:
         sections.append(_corl_section(results.of_suite("corl2017"), summary))
     else:

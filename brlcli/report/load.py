@@ -26,6 +26,7 @@ COMMON_KEYS: tuple[str, ...] = ("suite", "condition", "task", "town", "weather",
 
 SUITE_KEYS: dict[str, tuple[str, ...]] = {
     "paper": ("collided", "offroad_steps", "otherlane_steps", "either_steps"),
+    "validation": ("collided", "offroad_steps", "otherlane_steps", "either_steps"),
     "corl2017": ("infractions",),
 }
 """Further keys the tables of a suite need."""

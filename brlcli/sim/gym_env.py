@@ -37,9 +37,9 @@ def route_timeout_s(length_m: float) -> float:
 class DrivingEnv(gym.Env):
     """Lane keeping on a town's routes: observation = 30-vector state, 4 discrete actions, the paper's reward.
 
-    An episode starts at a route drawn from `routes` ("training" or "lane_keeping" of the town) and ends at the
-    goal (terminated), at the route's CoRL-style timeout or when stuck (truncated). With a `labeler` (RGB ->
-    label image, e.g. the segmentation net) the state comes from estimated labels instead of ground truth.
+    An episode starts at a route drawn from `routes` ("training", "lane_keeping" or "validation" of the town) and
+    ends at the goal (terminated), at the route's CoRL-style timeout or when stuck (truncated). With a `labeler`
+    (RGB -> label image, e.g. the segmentation net) the state comes from estimated labels instead of ground truth.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -48,13 +48,18 @@ class DrivingEnv(gym.Env):
                  kinds: tuple[str, ...] = ("straight", "right_curve", "left_curve"), vehicles: int = 0,
                  pedestrians: int = 0, camera: CameraConfig | None = None, reward: RewardParams | None = None,
                  render_mode: str | None = None,
-                 labeler: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+                 labeler: Callable[[np.ndarray], np.ndarray] | None = None, offroad_end: float | None = None,
+                 start_offset_m: float = 0.0, start_yaw_deg: float = 0.0) -> None:
         super().__init__()
+        try:
+            self.check_episode_rules(offroad_end, start_offset_m, start_yaw_deg)
+        except ValueError as exc:
+            raise BrlInputError(str(exc)) from None
+        self.offroad_end = offroad_end  # end the episode when more than this share of the footprint is off-road
+        self.start_offset_m = float(start_offset_m)  # start pose: lateral offset ~ U(-a, a) m
+        self.start_yaw_deg = float(start_yaw_deg)  # and heading offset ~ U(-b, b) degrees
         self.world = World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians, camera=camera)
-        pool = {"training": self.world.town.training_routes, "lane_keeping": self.world.town.lane_keeping_routes}
-        if routes not in pool:
-            raise BrlInputError(f"unknown route set '{routes}'; choose training or lane_keeping")
-        self.routes = [r for r in pool[routes] if r.kind in kinds]
+        self.routes = [r for r in self.world.town.route_set(routes) if r.kind in kinds]
         if not self.routes:
             raise BrlInputError(f"town {self.world.town.name} has no {routes} routes of kinds {', '.join(kinds)}")
         self.reward_params = reward or RewardParams()
@@ -63,6 +68,14 @@ class DrivingEnv(gym.Env):
         self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(STATE_DIM,), dtype=np.float32)
         self.action_space = gym.spaces.Discrete(len(ACTIONS))
         self._rgb: np.ndarray | None = None
+
+    @staticmethod
+    def check_episode_rules(offroad_end: float | None, start_offset_m: float, start_yaw_deg: float) -> None:
+        """ValueError unless offroad_end is None or in [0, 1] and the start offsets are >= 0."""
+        if offroad_end is not None and not 0.0 <= offroad_end <= 1.0:
+            raise ValueError(f"offroad_end must lie in [0, 1], got {offroad_end}")
+        if not (start_offset_m >= 0 and start_yaw_deg >= 0):
+            raise ValueError(f"start_offset_m and start_yaw_deg must be >= 0, got {start_offset_m}, {start_yaw_deg}")
 
     def _observe(self, frame: Any) -> np.ndarray:
         self._rgb = frame.rgb
@@ -84,7 +97,12 @@ class DrivingEnv(gym.Env):
         self.spec_route = spec
         self.route = self.world.network.route(spec.start, spec.goal)
         self.timeout_s = route_timeout_s(self.route.length_m)
-        frame = self.world.reset(spec.start, seed=int(self.np_random.integers(2**31)))
+        start = spec.start
+        if self.start_offset_m > 0 or self.start_yaw_deg > 0:
+            lateral, dyaw = self.np_random.uniform(-1.0, 1.0, size=2) * (self.start_offset_m, self.start_yaw_deg)
+            yaw = np.radians(start[2])
+            start = (start[0] - lateral * np.sin(yaw), start[1] + lateral * np.cos(yaw), start[2] + dyaw)
+        frame = self.world.reset(start, seed=int(self.np_random.integers(2**31)))
         self._collision_total = 0.0
         self._stuck_s = 0.0
         return self._observe(frame), {"route": spec.name, "route_length_m": self.route.length_m}
@@ -108,8 +126,11 @@ class DrivingEnv(gym.Env):
         terminated = dist_goal <= GOAL_TOLERANCE_M or s >= self.route.length_m - GOAL_TOLERANCE_M
         self._stuck_s = self._stuck_s + FRAMES_PER_DECISION * FRAME_DT_S if abs(m.forward_speed_kmh) < \
             STUCK_SPEED_KMH else 0.0
-        truncated = not terminated and (m.game_time_s >= self.timeout_s or self._stuck_s >= STUCK_TIME_S)
-        info = {"reward_terms": terms, "measurements": m.as_dict(), "route_s_m": s, "collided": collided}
+        offroad_end = self.offroad_end is not None and m.intersection_offroad > self.offroad_end
+        truncated = not terminated and (m.game_time_s >= self.timeout_s or self._stuck_s >= STUCK_TIME_S
+                                        or offroad_end)
+        info = {"reward_terms": terms, "measurements": m.as_dict(), "route_s_m": s, "collided": collided,
+                "offroad_end": offroad_end}
         return obs, float(terms["total"]), bool(terminated), bool(truncated), info
 
     def render(self) -> np.ndarray | None:

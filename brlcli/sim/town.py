@@ -24,6 +24,10 @@ CORL_TASK_POSES = ("straight", "one_curve", "navigation")
 #: The kinds of lane-keeping route (paper: straight, right curve, left curve; no junction).
 ROUTE_KINDS = ("straight", "right_curve", "left_curve")
 
+#: Named lane-keeping route sets of a town (`routes.<set>` in the file); `validation` is optional (town files
+#: made before it existed have none).
+ROUTE_SETS = ("training", "lane_keeping", "validation")
+
 
 class TownFormatError(BrlInputError):
     """A town file is missing a field or has a malformed one."""
@@ -70,6 +74,7 @@ class Town:
     spawn_poses: np.ndarray  # (P, 3) x_m, y_m, yaw_deg
     training_routes: tuple[RouteSpec, ...]
     lane_keeping_routes: tuple[RouteSpec, ...]
+    validation_routes: tuple[RouteSpec, ...] = ()  # lane keeping for model selection (empty in town files < 1.1)
     corl2017_poses: dict[str, np.ndarray] = field(default_factory=dict)  # task -> (25, 2) spawn indices
     path: str = ""
 
@@ -78,6 +83,17 @@ class Town:
         """Total length of the road graph's edges (centre lines, corners not rounded)."""
         d = self.nodes_m[self.edges[:, 0]] - self.nodes_m[self.edges[:, 1]]
         return float(np.abs(d).sum(axis=1).sum()) if len(d) else 0.0
+
+    def route_set(self, name: str) -> tuple[RouteSpec, ...]:
+        """A named route set: training, lane_keeping or validation (one-line error if unknown or absent)."""
+        sets = {"training": self.training_routes, "lane_keeping": self.lane_keeping_routes,
+                "validation": self.validation_routes}
+        if name not in sets:
+            raise BrlInputError(f"unknown route set '{name}'; choose from {', '.join(ROUTE_SETS)}")
+        if not sets[name]:
+            raise BrlInputError(f"town {self.name} (version {self.version}, {self.path}) has no {name} routes; "
+                                "regenerate it with python -m brlcli.sim.towngen")
+        return sets[name]
 
     @property
     def identity(self) -> dict[str, str]:
@@ -234,6 +250,8 @@ def parse_town(raw: Any, source: str = "<dict>") -> Town:
         lane_keeping_routes=_routes(
             _get(routes, "lane_keeping", list, "routes.", source), "routes.lane_keeping", source
         ),
+        validation_routes=(_routes(routes["validation"], "routes.validation", source)
+                           if "validation" in routes else ()),
         corl2017_poses=corl,
         path=source,
     )

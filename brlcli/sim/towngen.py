@@ -2,6 +2,16 @@
 
 Run `python -m brlcli.sim.towngen [--out towns]`. The output is deterministic (fixed seeds); a change to this
 generator that changes a town must bump that town's version in `TOWN_SPECS`.
+
+Route sets of a town: `training` (the training scenarios), `lane_keeping` (the paper's test routes) and
+`validation` (for model selection in sweeps), all lane keeping without a junction. Validation routes are drawn
+last, from their own generator, so adding them moved nothing else. Their straights lie on road stretches (either
+direction) that no training or test route comes within 8 m of. The only junction-free curves of both towns are
+their four corners, and the training and test routes drive every corner of town01 and three of town02 both ways;
+validation curves start 15 m before and end 10 m after the arc (training: 25 / 20 m, test: 20 / 25 m), so their
+start and goal poses are at least 4 m from every training and test pose but they share those arcs. Only the arc of
+town02's corner between junctions (6, 24) and (0, 10) is driven by validation routes alone (its approaches are too
+short for the training and test margins); its routes come first.
 """
 
 from __future__ import annotations
@@ -13,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from brlcli.sim.classes import CarlaClass
-from brlcli.sim.roadnet import RoadNetwork
+from brlcli.sim.roadnet import PathSegment, RoadNetwork
 from brlcli.sim.town import OBJECT_COLUMNS, TOWN_FORMAT, TOWN_FORMAT_VERSION, Town, TownGeometry
 from brlcli.sim.townmap import RESOLUTION_M, TERRAIN, TownMap
 
@@ -34,14 +44,27 @@ TOWN02_EDGES = (
 
 #: name -> (edges, version, seed, CoRL2017 average route lengths in m: straight, one turn, navigation)
 TOWN_SPECS = {
-    "town01": (TOWN01_EDGES, "1.0.0", 101, (200.0, 400.0, 770.0),
+    "town01": (TOWN01_EDGES, "1.1.0", 101, (200.0, 400.0, 770.0),
                "Training town after CARLA Town01 (grid 49 x 41, about 2.9 km of road)."),
-    "town02": (TOWN02_EDGES, "1.0.0", 202, (100.0, 170.0, 360.0),
+    "town02": (TOWN02_EDGES, "1.1.0", 202, (100.0, 170.0, 360.0),
                "Testing town after CARLA Town02 (grid 25 x 25, about 1.3 km of road)."),
 }
 
 SPAWN_SPACING_M = 24.0
 ROUTE_SAMPLE_M = 2.0
+VALIDATION_PER_KIND = 4
+VALIDATION_CURVE_BEFORE_M = 15.0
+VALIDATION_CURVE_AFTER_M = 10.0
+"""Validation curves start 15 m before a corner's arc and end 10 m after it (training: 25 / 20 m, test: 20 / 25 m,
+and straights start 6 m (training) or 15 m (test) after an arc): every pose at least 4 m from theirs."""
+VALIDATION_STRAIGHT_M = 60.0
+"""Length of a validation straight (metres; training straights are 70 m, test straights 90 m)."""
+VALIDATION_CLEARANCE_M = 8.0
+"""A validation straight keeps this distance from every training and test route (more than the 4 m between the
+two lanes of a road, so the opposite direction of a used stretch is not taken either)."""
+POSE_CLEARANCE_M = 3.9
+"""A validation start or goal is at least this far from every training and test start and goal (metres)."""
+LANE_END_MARGIN_M = 2.0
 
 
 def parse_edges(text: str) -> tuple[np.ndarray, np.ndarray]:
@@ -279,6 +302,85 @@ def _pick(routes: list[dict], per_kind: int, rng: np.random.Generator) -> list[d
     return out
 
 
+def route_points(net: RoadNetwork, start: tuple | list, goal: tuple | list, step_m: float = 1.0) -> np.ndarray:
+    """Points every `step_m` metres along the planned route from `start` to `goal` (both ends included)."""
+    r = net.route(tuple(start), tuple(goal))  # type: ignore[arg-type]
+    s = np.append(np.arange(0.0, r.length_m, step_m), r.length_m)
+    return np.stack([np.interp(s, r.cum_s, r.points[:, 0]), np.interp(s, r.cum_s, r.points[:, 1])], axis=1)
+
+
+def _route_doc(lane: PathSegment, kind: str, a: float, b: float) -> dict:
+    return {"name": "", "kind": kind, "start": [round(v, 3) for v in lane.pose_at(a)],
+            "goal": [round(v, 3) for v in lane.pose_at(b)]}
+
+
+def validation_routes(net: RoadNetwork, taken: list[dict], rng: np.random.Generator,
+                      per_kind: int = VALIDATION_PER_KIND) -> list[dict]:
+    """Validation routes: curves on every corner from other poses than `taken`, straights on untouched stretches.
+
+    Curves sharing the least of their length with `taken` routes come first; straights keep
+    `VALIDATION_CLEARANCE_M` from every taken route and from corners, spread over roads (picked with `rng`).
+    """
+    taken_pts = np.concatenate([route_points(net, r["start"], r["goal"]) for r in taken])
+    taken_poses = np.array([r[k][:2] for r in taken for k in ("start", "goal")], dtype=np.float64)
+
+    def own_poses(doc: dict) -> bool:
+        ends = np.array([doc["start"][:2], doc["goal"][:2]])
+        return bool(np.linalg.norm(ends[:, None] - taken_poses[None], axis=2).min() >= POSE_CLEARANCE_M)
+
+    def clear(points: np.ndarray, margin: float) -> np.ndarray:
+        d = np.linalg.norm(points[:, None, :] - taken_pts[None, :, :], axis=2).min(axis=1)
+        return d > margin
+
+    curves: dict[str, list[tuple[bool, dict]]] = {"right_curve": [], "left_curve": []}
+    straights: dict[int, list[dict]] = {}
+    for lane in net.lanes:
+        d = np.diff(lane.points, axis=0)
+        h = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+        tp = np.flatnonzero(np.abs(np.diff(h)) > 1e-3) + 1
+        arcs = np.split(tp, np.flatnonzero(np.diff(lane.cum_s[tp]) > 3.0) + 1) if len(tp) else []
+        for g in arcs:
+            s0, s1 = float(lane.cum_s[g[0]]), float(lane.cum_s[g[-1]])
+            kind = "left_curve" if h[g[-1]] > h[g[0] - 1] else "right_curve"
+            a, b = s0 - VALIDATION_CURVE_BEFORE_M, s1 + VALIDATION_CURVE_AFTER_M
+            if a >= LANE_END_MARGIN_M and b <= lane.length_m - LANE_END_MARGIN_M:
+                pts = np.array([lane.pose_at(v)[:2] for v in np.arange(a, b, 1.0)])
+                shared = float(1.0 - clear(pts, VALIDATION_CLEARANCE_M).mean())  # share of the route near taken ones
+                doc = _route_doc(lane, kind, a, b)
+                if own_poses(doc):
+                    curves[kind].append((shared, doc))
+        # free stretches: away from the lane ends, the arcs and every taken route
+        s = np.arange(LANE_END_MARGIN_M, lane.length_m - LANE_END_MARGIN_M + 1e-9, 1.0)
+        free = clear(np.array([lane.pose_at(v)[:2] for v in s]), VALIDATION_CLEARANCE_M)
+        for g in arcs:
+            free &= (s < float(lane.cum_s[g[0]]) - 1.0) | (s > float(lane.cum_s[g[-1]]) + 1.0)
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], free.astype(int), [0]])))
+        for lo, hi in zip(edges[::2], edges[1::2], strict=True):
+            a0, a1 = float(s[lo]), float(s[hi - 1])
+            if a1 - a0 >= VALIDATION_STRAIGHT_M:
+                a = round((a0 + a1 - VALIDATION_STRAIGHT_M) / 2.0, 1)  # centred in the free stretch
+                straights.setdefault(lane.road, []).append(_route_doc(lane, "straight", a, a + VALIDATION_STRAIGHT_M))
+    out: list[dict] = []
+    roads = sorted(straights)
+    queues = [list(straights[roads[i]]) for i in rng.permutation(len(roads))]
+    for q in queues:  # shuffle each road's stretches (both directions), then take one per road in turn
+        q[:] = [q[i] for i in rng.permutation(len(q))]
+    picked: list[dict] = []
+    while len(picked) < per_kind and any(queues):
+        for q in queues:
+            if q and len(picked) < per_kind:
+                picked.append(q.pop(0))
+    out.extend(sorted(picked, key=lambda r: (r["start"][0], r["start"][1])))
+    for kind in ("right_curve", "left_curve"):  # least shared first, then in lane order
+        ranked = [doc for _, (_, doc) in sorted(enumerate(curves[kind]), key=lambda x: (x[1][0], x[0]))]
+        out.extend(ranked[:per_kind])
+    counts = dict.fromkeys(("straight", "right_curve", "left_curve"), 0)
+    for r in out:
+        counts[r["kind"]] += 1
+        r["name"] = f"val_{r['kind']}_{counts[r['kind']]}"
+    return [{"name": r["name"], "kind": r["kind"], "start": r["start"], "goal": r["goal"]} for r in out]
+
+
 def generate(name: str) -> dict:
     """Build the town document for one of `TOWN_SPECS`."""
     edges_text, version, seed, targets, description = TOWN_SPECS[name]
@@ -290,6 +392,9 @@ def generate(name: str) -> dict:
     poses = spawn_poses(net)
     train = lane_keeping_routes(net, "train", 25.0, 20.0, 70.0, 6.0)
     test = lane_keeping_routes(net, "test", 20.0, 25.0, 90.0, 15.0)
+    training, lane_keeping = _pick(train, 4, rng), _pick(test, 4, rng)
+    corl = corl_pairs(net, poses, targets, rng)
+    validation = validation_routes(net, training + lane_keeping, np.random.default_rng([seed, 12]))
     doc = {
         "format": TOWN_FORMAT,
         "format_version": TOWN_FORMAT_VERSION,
@@ -303,9 +408,10 @@ def generate(name: str) -> dict:
         "objects": {"columns": list(OBJECT_COLUMNS), "rows": objects.tolist()},
         "spawn_poses": poses.tolist(),
         "routes": {
-            "training": _pick(train, 4, rng),
-            "lane_keeping": _pick(test, 4, rng),
-            "corl2017": corl_pairs(net, poses, targets, rng),
+            "training": training,
+            "lane_keeping": lane_keeping,
+            "validation": validation,
+            "corl2017": corl,
         },
     }
     return doc

@@ -1,0 +1,294 @@
+"""Compiled (numba) kernels of the Bayesian agent's hot path; the equations are those of `brlcli.agent.bayes`.
+
+Why numba: at D = 30 the work per call is small (one likelihood pass over M components is M * 465 multiply-adds),
+so a numpy formulation is dominated by per-call overhead (a dozen ufunc calls, each a few microseconds on the
+target machine) and by a Python loop over D in the rank-1 Cholesky update. Each kernel below is one call.
+
+Layout of the per-component caches (all indexed by component m):
+- `linv[m]`: L_m^-1 packed by rows, row i (columns 0..i) at offset i (i + 1) / 2: z_i = L^-1 d is a contiguous
+  dot product and only the lower triangle is stored (half the memory traffic of D x D).
+- `tpar[m]`: (log normaliser, inv_scale, dof) of the Student-t, Sigma^-1 = inv_scale S^-1, dof = nu - D + 1.
+
+Determinism: no fastmath, no parallelism; the arithmetic for one (state, component) pair is the same code whether
+one component or all are evaluated, so patched cache entries are bitwise equal to a fresh pass.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numba
+import numpy as np
+
+
+def _jit(fn: Callable) -> Callable:
+    """numba.njit with an on-disk cache where a writable cache location exists, else compiled once per process."""
+    try:
+        return numba.njit(cache=True, error_model="numpy")(fn)
+    except RuntimeError:  # no cache locator: read-only install and no writable user cache dir (NUMBA_CACHE_DIR)
+        return numba.njit(cache=False, error_model="numpy")(fn)
+
+
+@_jit
+def all_finite(x: np.ndarray) -> bool:
+    """True when every entry of the 1-d array x is finite."""
+    for i in range(x.shape[0]):
+        if not math.isfinite(x[i]):
+            return False
+    return True
+
+
+@_jit
+def chol_rank1(chol: np.ndarray, x: np.ndarray) -> None:
+    """In place: chol (D, D) lower <- Cholesky factor of chol chol^T + x x^T; x (D,) is overwritten."""
+    dim = x.shape[0]
+    for k in range(dim):
+        xk = x[k]
+        if xk == 0.0:  # the rotation is the identity
+            continue
+        lkk = chol[k, k]
+        r = math.hypot(lkk, xk)
+        c = r / lkk
+        s = xk / lkk
+        chol[k, k] = r
+        for i in range(k + 1, dim):
+            col = (chol[i, k] + s * x[i]) / c
+            chol[i, k] = col
+            x[i] = x[i] * c - s * col
+
+
+@_jit
+def niw_absorb(mean: np.ndarray, scatter: np.ndarray, chol: np.ndarray, x: np.ndarray, w: float,
+               kappa: float) -> None:
+    """In place on one component's (mean (D,), scatter (D, D), chol (D, D)): absorb x with weight w > 0."""
+    dim = x.shape[0]
+    d = np.empty(dim)
+    for i in range(dim):
+        d[i] = x[i] - mean[i]
+    coef = kappa * w / (kappa + w)  # uses the old kappa; d uses the old mean
+    for i in range(dim):
+        for j in range(dim):
+            scatter[i, j] += coef * (d[i] * d[j])
+    root = math.sqrt(coef)
+    u = np.empty(dim)
+    for i in range(dim):
+        u[i] = root * d[i]
+    chol_rank1(chol, u)
+    step = w / (kappa + w)
+    for i in range(dim):
+        mean[i] += step * d[i]
+
+
+@_jit
+def refresh(chol: np.ndarray, kappa: np.ndarray, nu: np.ndarray, linv: np.ndarray, tpar: np.ndarray,
+            m: int) -> None:
+    """Recompute linv[m] (packed L^-1) and tpar[m] (log normaliser, inv_scale, dof) from chol[m], kappa[m], nu[m]."""
+    dim = chol.shape[1]
+    lo = chol[m]
+    x = np.zeros((dim, dim))  # L X = I, row-oriented forward substitution (X lower triangular)
+    for i in range(dim):
+        x[i, i] = 1.0
+    for k in range(dim):
+        diag = lo[k, k]
+        for j in range(k + 1):
+            x[k, j] /= diag
+        for i in range(k + 1, dim):
+            lik = lo[i, k]
+            if lik != 0.0:
+                for j in range(k + 1):
+                    x[i, j] -= lik * x[k, j]
+    out = linv[m]
+    p = 0
+    for i in range(dim):
+        for j in range(i + 1):
+            out[p] = x[i, j]
+            p += 1
+    km = kappa[m]
+    dof = nu[m] - dim + 1.0
+    scale = (km + 1.0) / (km * dof)
+    log_diag = 0.0
+    for i in range(dim):
+        log_diag += math.log(lo[i, i])
+    log_det_sigma = dim * math.log(scale) + 2.0 * log_diag
+    tpar[m, 0] = (math.lgamma(0.5 * (dof + dim)) - math.lgamma(0.5 * dof)
+                  - 0.5 * dim * math.log(dof * math.pi) - 0.5 * log_det_sigma)
+    tpar[m, 1] = 1.0 / scale
+    tpar[m, 2] = dof
+
+
+@_jit
+def evaluate(states: np.ndarray, row_lo: int, row_hi: int, mean: np.ndarray, linv: np.ndarray, tpar: np.ndarray,
+             lo: int, hi: int, out_ll: np.ndarray, out_dist: np.ndarray) -> None:
+    """For states[row_lo:row_hi] and components lo..hi-1: log p(s|m) into out_ll, ||s - mu_m||_inf into out_dist."""
+    dim = states.shape[1]
+    d = np.empty(dim)
+    for r in range(row_lo, row_hi):
+        s = states[r]
+        for m in range(lo, hi):
+            mu = mean[m]
+            dist = 0.0
+            for i in range(dim):
+                di = s[i] - mu[i]
+                d[i] = di
+                a = abs(di)
+                if a > dist:
+                    dist = a
+            row = linv[m]
+            acc = 0.0
+            p = 0
+            for i in range(dim):
+                zi = 0.0  # z = L^-1 d, row i
+                for j in range(i + 1):
+                    zi += row[p + j] * d[j]
+                p += i + 1
+                acc += zi * zi
+            maha = acc * tpar[m, 1]
+            dof = tpar[m, 2]
+            out_ll[r, m] = tpar[m, 0] - 0.5 * (dof + dim) * math.log1p(maha / dof)
+            out_dist[r, m] = dist
+
+
+@_jit
+def tables(q: np.ndarray, n: int, over_actions: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eqs. 2-4 from Q[:, :n] + qhat: (p(m|a) (n, A) normalised over m, or over a if over_actions; p(a); p(m))."""
+    n_act = q.shape[0]
+    q_min = math.inf
+    for a in range(n_act):
+        for m in range(n):
+            if q[a, m] < q_min:
+                q_min = q[a, m]
+    q_hat = abs(q_min) / (1.0 + abs(q_min)) - q_min
+    pma = np.empty((n, n_act))
+    col = np.zeros(n_act)
+    row = np.zeros(n)
+    for m in range(n):
+        for a in range(n_act):
+            v = q[a, m] + q_hat
+            pma[m, a] = v
+            row[m] += v
+    for a in range(n_act):
+        acc = 0.0
+        for m in range(n):
+            acc += pma[m, a]
+        col[a] = acc
+    p_a = _normalised(col)
+    p_m = _normalised(row)
+    if over_actions:
+        for m in range(n):
+            t = row[m]
+            ok = t > 0.0 and math.isfinite(t)
+            for a in range(n_act):
+                pma[m, a] = pma[m, a] / t if ok else 1.0 / n_act
+    else:
+        for a in range(n_act):
+            t = col[a]
+            ok = t > 0.0 and math.isfinite(t)
+            for m in range(n):
+                pma[m, a] = pma[m, a] / t if ok else 1.0 / n
+    return pma, p_a, p_m
+
+
+@_jit
+def _normalised(x: np.ndarray) -> np.ndarray:
+    """x / sum(x), or the uniform distribution where the sum is not positive and finite."""
+    t = 0.0
+    for i in range(x.shape[0]):
+        t += x[i]
+    out = np.empty_like(x)
+    ok = t > 0.0 and math.isfinite(t)
+    for i in range(x.shape[0]):
+        out[i] = x[i] / t if ok else 1.0 / x.shape[0]
+    return out
+
+
+@_jit
+def _shifted(ll: np.ndarray, n: int) -> np.ndarray:
+    """exp(ll[:n] - max ll[:n]): likelihoods up to a common factor (all ones when the maximum is not finite)."""
+    top = -math.inf
+    for m in range(n):
+        if ll[m] > top:
+            top = ll[m]
+    out = np.empty(n)
+    finite = math.isfinite(top)
+    for m in range(n):
+        out[m] = math.exp(ll[m] - top) if finite else 1.0
+    return out
+
+
+@_jit
+def _argmax(x: np.ndarray) -> int:
+    """Index of the first maximum."""
+    best = 0
+    for i in range(1, x.shape[0]):
+        if x[i] > x[best]:
+            best = i
+    return best
+
+
+@_jit
+def _p_action(lik: np.ndarray, pma: np.ndarray, p_a: np.ndarray) -> np.ndarray:
+    """p(a|s) ∝ p(a) sum_m lik[m] p(m|a) (eq. 1), normalised."""
+    n, n_act = pma.shape
+    v = np.empty(n_act)
+    for a in range(n_act):
+        acc = 0.0
+        for m in range(n):
+            acc += lik[m] * pma[m, a]
+        v[a] = p_a[a] * acc
+    return _normalised(v)
+
+
+@_jit
+def action_probs(ll: np.ndarray, q: np.ndarray, n: int, over_actions: bool) -> np.ndarray:
+    """p(a|s) (eq. 1) for log-likelihoods ll[:n] of one state."""
+    pma, p_a, _ = tables(q, n, over_actions)
+    return _p_action(_shifted(ll, n), pma, p_a)
+
+
+@_jit
+def _log_argmax(ll: np.ndarray, pma: np.ndarray, a: int) -> int:
+    """argmax_m ll[m] + log p(m|a) (first maximum; log 0 = -inf)."""
+    best, best_v = 0, -math.inf
+    for m in range(pma.shape[0]):
+        p = pma[m, a]
+        v = ll[m] + (math.log(p) if p > 0.0 else -math.inf)
+        if m == 0 or v > best_v:
+            best, best_v = m, v
+    return best
+
+
+@_jit
+def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.ndarray, n: int, a_t: int,
+           reward: float, gamma: float, t_l: float, t_u: float,
+           reference_code: bool) -> tuple[float, int, float, float, int]:
+    """Steps 1-3 of Algorithm 1 and the weight of eq. 9 for m_t: (td, m_t, d_t, weight, case 0 good/1 bad/2 neutral)."""
+    pma, p_a, p_m = tables(q, n, reference_code)
+    ll_t = ll[row_t]
+    ll_next = ll[row_next]
+    a_next = _argmax(_p_action(_shifted(ll_next, n), pma, p_a))
+    m_next = _log_argmax(ll_next, pma, a_next)
+    dt = dist[row_t]
+    m_t = 0
+    for m in range(1, n):
+        if dt[m] < dt[m_t]:
+            m_t = m
+    m_delta = _log_argmax(ll_t, pma, a_t) if reference_code else m_t
+    td = reward + gamma * q[a_next, m_next] - q[a_t, m_delta]
+    lik = _shifted(ll_t, n)
+    num = np.empty(n)
+    if td > t_u:
+        case = 0
+        for m in range(n):
+            num[m] = lik[m] * pma[m, a_t]
+    elif td < t_l:
+        case = 1
+        if n == 1:  # p(m|a) = 1 makes eq. 10 0/0; defined as 1 for the only component
+            return td, m_t, dt[m_t], 1.0, case
+        for m in range(n):
+            num[m] = lik[m] * (1.0 - pma[m, a_t])
+    else:
+        case = 2
+        for m in range(n):
+            num[m] = lik[m] * p_m[m]
+    return td, m_t, dt[m_t], _normalised(num)[m_t], case
