@@ -66,6 +66,7 @@ class TrainConfig:
     offroad_end: float | None = None  # end a training episode when the off-road share of the footprint exceeds it
     start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m ...
     start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
+    otherlane_end: float | None = None  # end a training episode when the share in the opposite lane exceeds it
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
@@ -76,7 +77,8 @@ class TrainConfig:
         try:
             self.reward_params()
             self.camera()
-            DrivingEnv.check_episode_rules(self.offroad_end, self.start_offset_m, self.start_yaw_deg)
+            DrivingEnv.check_episode_rules(self.offroad_end, self.start_offset_m, self.start_yaw_deg,
+                                           self.otherlane_end)
         except ValueError as exc:
             raise BrlInputError(f"bad training configuration: {exc}") from None
         if self.variant not in ("paper", "reference-code"):
@@ -147,7 +149,7 @@ def _make_env(cfg: TrainConfig) -> DrivingEnv:
     return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training", kinds=cfg.route_kinds,
                       reward=cfg.reward_params(), labeler=_labeler(cfg), camera=cfg.camera(),
                       offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
-                      start_yaw_deg=cfg.start_yaw_deg)
+                      start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end)
 
 
 def _log_row(step: int, episode: int, decision: int, action: int, reward: float, terms: dict, learn: Any,

@@ -49,12 +49,14 @@ class DrivingEnv(gym.Env):
                  pedestrians: int = 0, camera: CameraConfig | None = None, reward: RewardParams | None = None,
                  render_mode: str | None = None,
                  labeler: Callable[[np.ndarray], np.ndarray] | None = None, offroad_end: float | None = None,
-                 start_offset_m: float = 0.0, start_yaw_deg: float = 0.0) -> None:
+                 start_offset_m: float = 0.0, start_yaw_deg: float = 0.0,
+                 otherlane_end: float | None = None) -> None:
         super().__init__()
         try:
-            self.check_episode_rules(offroad_end, start_offset_m, start_yaw_deg)
+            self.check_episode_rules(offroad_end, start_offset_m, start_yaw_deg, otherlane_end)
         except ValueError as exc:
             raise BrlInputError(str(exc)) from None
+        self.otherlane_end = otherlane_end  # ... or more than this share of it is in the opposite lane
         self.offroad_end = offroad_end  # end the episode when more than this share of the footprint is off-road
         self.start_offset_m = float(start_offset_m)  # start pose: lateral offset ~ U(-a, a) m
         self.start_yaw_deg = float(start_yaw_deg)  # and heading offset ~ U(-b, b) degrees
@@ -70,10 +72,12 @@ class DrivingEnv(gym.Env):
         self._rgb: np.ndarray | None = None
 
     @staticmethod
-    def check_episode_rules(offroad_end: float | None, start_offset_m: float, start_yaw_deg: float) -> None:
-        """ValueError unless offroad_end is None or in [0, 1] and the start offsets are >= 0."""
-        if offroad_end is not None and not 0.0 <= offroad_end <= 1.0:
-            raise ValueError(f"offroad_end must lie in [0, 1], got {offroad_end}")
+    def check_episode_rules(offroad_end: float | None, start_offset_m: float, start_yaw_deg: float,
+                            otherlane_end: float | None = None) -> None:
+        """ValueError unless offroad_end and otherlane_end are None or in [0, 1] and the start offsets are >= 0."""
+        for name, value in (("offroad_end", offroad_end), ("otherlane_end", otherlane_end)):
+            if value is not None and not 0.0 <= value <= 1.0:
+                raise ValueError(f"{name} must lie in [0, 1], got {value}")
         if not (start_offset_m >= 0 and start_yaw_deg >= 0):
             raise ValueError(f"start_offset_m and start_yaw_deg must be >= 0, got {start_offset_m}, {start_yaw_deg}")
 
@@ -126,7 +130,8 @@ class DrivingEnv(gym.Env):
         terminated = dist_goal <= GOAL_TOLERANCE_M or s >= self.route.length_m - GOAL_TOLERANCE_M
         self._stuck_s = self._stuck_s + FRAMES_PER_DECISION * FRAME_DT_S if abs(m.forward_speed_kmh) < \
             STUCK_SPEED_KMH else 0.0
-        offroad_end = self.offroad_end is not None and m.intersection_offroad > self.offroad_end
+        offroad_end = (self.offroad_end is not None and m.intersection_offroad > self.offroad_end) or \
+            (self.otherlane_end is not None and m.intersection_otherlane > self.otherlane_end)
         truncated = not terminated and (m.game_time_s >= self.timeout_s or self._stuck_s >= STUCK_TIME_S
                                         or offroad_end)
         info = {"reward_terms": terms, "measurements": m.as_dict(), "route_s_m": s, "collided": collided,
