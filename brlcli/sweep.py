@@ -70,7 +70,9 @@ def _merge(base: dict[str, Any], over: dict[str, Any], where: str, defaults: dic
     for key, value in over.items():
         name = f"{where}{key}"
         if defaults is not None and key not in defaults:
-            raise BrlInputError(f"unknown training config key '{name}'")
+            hint = (" (a dot in a TOML table name nests tables: quote the variant name, [variants.\"a.b\"])"
+                    if where == "" and isinstance(value, dict) else "")
+            raise BrlInputError(f"unknown training config key '{name}'{hint}")
         if isinstance(value, dict) and isinstance(out.get(key), dict):
             default = defaults.get(key) if defaults is not None else None
             open_table = not (isinstance(default, dict) and default) or name in OPEN_TABLES

@@ -50,6 +50,7 @@ def test_grid_merges_base_and_nested_params(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(("text", "words"), [
     ("[variants.x]\nfoo = 1\n", "variant 'x': unknown training config key 'foo'"),
+    ("[variants.end-0.2]\noffroad_end = 0.2\n", "a dot in a TOML table name nests tables"),
     ("[base]\nfoo = 1\n[variants.x]\n", "[base]: unknown training config key 'foo'"),
     ("[variants.x]\nsteps = 'many'\n", "variant 'x': training config key 'steps' must be an integer"),
     ("[variants.x]\nsteps = 0\n", "--steps must be at least 1"),
