@@ -63,7 +63,7 @@ class TrainConfig:
     curve_every: int = 0  # evaluate greedily on the paper suite every N steps (learning_curve.csv); 0 = never
     camera_pitch_deg: float = -15.0  # pitch of the state camera (deg, - = down); the authors' code uses -30
     road_view: str = "road+line"  # the road-view reward counts "road" or "road+line" (authors' code) state entries
-    offroad_end: float | None = None  # end a training episode when the off-road share of the footprint exceeds it
+    offroad_end: float | None = 0.5  # end a training episode when the off-road share of the footprint exceeds it
     start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m ...
     start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
     otherlane_end: float | None = None  # end a training episode when the share in the opposite lane exceeds it
@@ -99,7 +99,8 @@ class TrainConfig:
         if extra:
             raise BrlInputError(f"unknown training config keys: {', '.join(sorted(extra))}")
         d = dict(d)
-        d.setdefault("road_view", "road")  # configs written before the option counted Road entries only
+        if "road_view" not in d:  # a config written before the study's options: brl 0.1's choices
+            d.update(road_view="road", offroad_end=None)
         if "route_kinds" in d:
             d["route_kinds"] = tuple(d["route_kinds"])
         return cls(**d)
