@@ -79,3 +79,15 @@ def test_bench_sees_through_the_models_training_camera(tmp_path: Path) -> None:
     (tmp_path / "config.json").write_text(json.dumps({"config": TrainConfig().to_dict()}))
     assert model_camera(model) is None
     assert TrainConfig(camera_pitch_deg=-30.0).camera().pitch_deg == -30.0
+
+
+def test_configs_written_before_the_study_keep_brl_0_1_choices() -> None:
+    old = {k: v for k, v in TrainConfig().to_dict().items()
+           if k not in ("camera_pitch_deg", "road_view", "offroad_end", "start_offset_m", "start_yaw_deg",
+                        "otherlane_end")}
+    old["params"] = {}
+    cfg = TrainConfig.from_dict(old)
+    assert cfg.road_view == "road" and cfg.offroad_end is None and cfg.agent_params().init_scatter == 0.1
+    new = TrainConfig()
+    assert new.road_view == "road+line" and new.offroad_end == 0.5 and new.agent_params().init_scatter == 1e-3
+    assert TrainConfig.from_dict(new.to_dict()) == new
