@@ -4,7 +4,7 @@ Layout of a run directory:
     config.json      resolved configuration + brl version + git commit
     log.csv          one row per learning step (reward and its terms, TD error, components, schedules, ...)
     model.npz        the trained agent (written at the end)
-    summary.json     totals and the greedy evaluation on the town's lane-keeping routes
+    summary.json     totals and the greedy evaluation on the town's validation routes
     checkpoint/      agent + generator state at the last finished episode (resume restarts from there)
 """
 

@@ -68,7 +68,7 @@ def test_offroad_end_truncates_the_episode() -> None:
         _, _, terminated, truncated, info = env.step(1)
         if truncated or terminated:
             break
-    assert truncated and info["offroad_end"] and info["measurements"]["intersection_offroad"] > 0.5
+    assert truncated and info["left_lane"] and info["measurements"]["intersection_offroad"] > 0.5
     env.close()
 
 

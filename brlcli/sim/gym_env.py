@@ -130,12 +130,12 @@ class DrivingEnv(gym.Env):
         terminated = dist_goal <= GOAL_TOLERANCE_M or s >= self.route.length_m - GOAL_TOLERANCE_M
         self._stuck_s = self._stuck_s + FRAMES_PER_DECISION * FRAME_DT_S if abs(m.forward_speed_kmh) < \
             STUCK_SPEED_KMH else 0.0
-        offroad_end = (self.offroad_end is not None and m.intersection_offroad > self.offroad_end) or \
+        left_lane = (self.offroad_end is not None and m.intersection_offroad > self.offroad_end) or \
             (self.otherlane_end is not None and m.intersection_otherlane > self.otherlane_end)
         truncated = not terminated and (m.game_time_s >= self.timeout_s or self._stuck_s >= STUCK_TIME_S
-                                        or offroad_end)
+                                        or left_lane)
         info = {"reward_terms": terms, "measurements": m.as_dict(), "route_s_m": s, "collided": collided,
-                "offroad_end": offroad_end}
+                "left_lane": left_lane}
         return obs, float(terms["total"]), bool(terminated), bool(truncated), info
 
     def render(self) -> np.ndarray | None:
