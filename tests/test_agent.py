@@ -377,6 +377,22 @@ def test_far_bad_action_creates_component_at_s_t() -> None:
     np.testing.assert_array_equal(agent.nu, [D, D])
 
 
+def test_new_q_nearest_copies_m_t_and_takes_the_td_target() -> None:
+    agent = BayesianAgent(D, A, BRLParams(new_q="nearest"))
+    agent.learn(np.full(D, 1.0 / D), 2, -3.0, np.full(D, 1.0 / D))  # near: updates component 0's Q[2]
+    q0 = agent.Q[:, 0].copy()
+    s, s2 = far_state(D, 4), far_state(D, 7)
+    step = agent.learn(s, 3, -60.0, s2)
+    assert step.created and agent.n_components == 2
+    expected = q0.copy()
+    expected[3] = -60.0 + 0.9 * q0.max()  # r + gamma Q[a', m']: one component, a' its best action
+    assert step.td_error == pytest.approx(expected[3] - q0[3], rel=1e-14)
+    np.testing.assert_allclose(agent.Q[:, 1], expected, rtol=1e-14)
+    np.testing.assert_array_equal(agent.Q[:, 0], q0)  # m_t itself is not updated on creation
+    with pytest.raises(ValueError, match="new_q"):
+        BRLParams(new_q="inherit")
+
+
 def test_schedules_follow_exponential_approach() -> None:
     params = BRLParams(alpha_rate=0.05, tau_rate=0.2, rho_rate=0.1, alpha_final=0.3, tau_final=0.9, rho_final=0.02)
     agent = BayesianAgent(D, A, params)

@@ -410,7 +410,11 @@ class BayesianAgent:
             step = LearnStep(td_error, m_t, False, weight, WEIGHT_CASES[case], 0)
         elif self._n < p.max_components:
             m_new = self._add_component(s_t)
-            self._q[a_t, m_new] = p.new_q_taken
+            if p.new_q == "nearest":  # m_t's action values, the taken action at the value just observed
+                self._q[:, m_new] = self._q[:, m_t]
+                self._q[a_t, m_new] = self._q[a_t, m_t] + td_error
+            else:
+                self._q[a_t, m_new] = p.new_q_taken
             step = LearnStep(td_error, m_new, True, math.nan, "created", 0)
         elif p.at_capacity == "merge":
             self._update(m_t, a_t, s_t, td_error, weight)

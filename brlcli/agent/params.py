@@ -10,6 +10,11 @@ VARIANTS = ("paper", "reference-code")
 """`paper`: the equations as printed. `reference-code`: Q + qhat normalised over actions per component and
 m_t = argmax_m p(m | a_t, s_t) inside the TD error, as in the authors' code (see brl-math.md)."""
 
+NEW_Q_RULES = ("constant", "nearest")
+"""The Q column of a component created after the bad action a_t (Algorithm 1 does not say; docs/brl-math.md):
+`constant`: init_q for every action and new_q_taken for a_t (the authors' code); `nearest`: a copy of the l_inf-nearest
+component m_t's column, with Q[a_t, new] = the step's TD target r_t + gamma Q[a', m']."""
+
 AT_CAPACITY_POLICIES = ("merge", "skip")
 """What learn() does when it would create a component but `max_components` are in use:
 `merge` updates the l_inf-nearest component m_t with the usual weight rule instead (Q and NIW update);
@@ -51,12 +56,14 @@ class BRLParams:
     """A new component's Q column, every action."""
     new_q_taken: float = -1.0
     """Q[a_t, new] of a component created after the bad action a_t."""
+    new_q: str = "constant"
+    """How a new component's Q column starts (see NEW_Q_RULES)."""
 
     def __post_init__(self) -> None:
         """Validate every field; a bad value raises ValueError naming it."""
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name in ("variant", "at_capacity"):
+            if f.name in ("variant", "at_capacity", "new_q"):
                 if not isinstance(value, str):
                     raise ValueError(f"BRLParams.{f.name} must be a string, got {value!r}")
             elif f.name == "max_components":
@@ -71,6 +78,8 @@ class BRLParams:
         if self.at_capacity not in AT_CAPACITY_POLICIES:
             raise ValueError(f"BRLParams.at_capacity must be one of {', '.join(AT_CAPACITY_POLICIES)}, "
                              f"got {self.at_capacity!r}")
+        if self.new_q not in NEW_Q_RULES:
+            raise ValueError(f"BRLParams.new_q must be one of {', '.join(NEW_Q_RULES)}, got {self.new_q!r}")
         if self.max_components < 1:
             raise ValueError(f"BRLParams.max_components must be >= 1, got {self.max_components}")
         unit = ("gamma", "alpha_init", "alpha_final", "tau_init", "tau_final",
