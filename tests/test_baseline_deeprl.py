@@ -34,6 +34,22 @@ def test_env_passes_the_sb3_checker() -> None:
         env.close()
 
 
+def test_dqn_trains_on_brl_trains_reward_and_episode_rule() -> None:
+    env = drl._make_env(DeepRLConfig())
+    try:
+        assert env.reward_params.road_view == "road+line" and env.offroad_end == 0.5
+    finally:
+        env.close()
+    old = DeepRLConfig().to_dict()
+    del old["road_view"], old["offroad_end"]  # a config.json written before these options
+    cfg = DeepRLConfig.from_dict(old)
+    assert (cfg.road_view, cfg.offroad_end) == ("road", None)
+    with pytest.raises(BrlInputError, match="road_view"):
+        DeepRLConfig(road_view="lines")
+    with pytest.raises(BrlInputError, match="offroad_end"):
+        DeepRLConfig(offroad_end=1.5)
+
+
 class _Stop(Exception):
     pass
 

@@ -32,8 +32,9 @@ from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM
 from brlcli.policy import StatePolicy, setting_name
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
+from brlcli.reward import RewardParams
 from brlcli.segnet import check_input_source, labeler_for
-from brlcli.sim.gym_env import ACTIONS
+from brlcli.sim.gym_env import ACTIONS, DrivingEnv
 from brlcli.torchfiles import load_torch_doc, save_torch_doc
 
 DRL_FORMAT = "brl-drl"
@@ -66,6 +67,8 @@ class DeepRLConfig:
     net_arch: tuple[int, ...] = (64, 64)
     target_speed_kmh: float = 20.0
     segnet: str | None = None
+    road_view: str = "road+line"  # the road-view reward's share, as `brl train`'s default (docs/lane-keeping-study.md)
+    offroad_end: float | None = 0.5  # a training episode ends beyond this off-road share, as `brl train`'s default
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -80,6 +83,11 @@ class DeepRLConfig:
         from brlcli.sim.weather import get_weather
 
         get_weather(self.weather)
+        try:
+            RewardParams(target_speed_kmh=self.target_speed_kmh, road_view=self.road_view)
+            DrivingEnv.check_episode_rules(self.offroad_end, 0.0, 0.0)
+        except ValueError as exc:
+            raise BrlInputError(f"bad deep RL configuration: {exc}") from None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
@@ -94,6 +102,8 @@ class DeepRLConfig:
         if extra:
             raise BrlInputError(f"unknown deep RL config keys: {', '.join(sorted(extra))}")
         d = dict(d)
+        if "road_view" not in d:  # written before brl train's study defaults: brl 0.1's reward and episodes
+            d.update(road_view="road", offroad_end=None)
         if "net_arch" in d:
             d["net_arch"] = tuple(d["net_arch"])
         return cls(**d)
@@ -179,12 +189,9 @@ def _chunk_seed(seed: int, chunk: int) -> int:
 
 
 def _make_env(cfg: DeepRLConfig) -> Any:
-    from brlcli.reward import RewardParams
-    from brlcli.sim.gym_env import DrivingEnv
-
     return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training",
-                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh),
-                      labeler=labeler_for(cfg.input, cfg.segnet, "--input"))
+                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh, road_view=cfg.road_view),
+                      labeler=labeler_for(cfg.input, cfg.segnet, "--input"), offroad_end=cfg.offroad_end)
 
 
 def _build_dqn(cfg: DeepRLConfig, env: Any) -> Any:
