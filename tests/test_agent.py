@@ -393,6 +393,20 @@ def test_new_q_nearest_copies_m_t_and_takes_the_td_target() -> None:
         BRLParams(new_q="inherit")
 
 
+def test_visit_count_step_size_averages_a_components_td_targets() -> None:
+    agent = BayesianAgent(D, A, BRLParams(step_size="visits"))
+    s = np.full(D, 1.0 / D) + np.r_[0.01, -0.01, np.zeros(D - 2)]  # within rho of the only component
+    first = agent.learn(s, 1, -60.0, s)
+    assert first.weight == 1.0 and agent.kappa[0] == D + 2
+    q_after_first = 0.1 + 0.99 * first.td_error  # kappa - D = 1 before it: the schedule's alpha applies
+    assert agent.Q[1, 0] == pytest.approx(q_after_first, rel=1e-14)
+    second = agent.learn(s, 1, -60.0, s)
+    assert second.weight == 1.0
+    assert agent.Q[1, 0] == pytest.approx(q_after_first + 0.5 * second.td_error, rel=1e-14)  # 1 / (kappa - D)
+    with pytest.raises(ValueError, match="step_size"):
+        BRLParams(step_size="adaptive")
+
+
 def test_schedules_follow_exponential_approach() -> None:
     params = BRLParams(alpha_rate=0.05, tau_rate=0.2, rho_rate=0.1, alpha_final=0.3, tau_final=0.9, rho_final=0.02)
     agent = BayesianAgent(D, A, params)

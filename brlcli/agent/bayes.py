@@ -431,10 +431,13 @@ class BayesianAgent:
 
     def _update(self, m: int, a_t: int, s_t: np.ndarray, td_error: float, weight: float) -> None:
         """Q update (eq. 8) and fractional NIW update of component m with weight w."""
-        self._q[a_t, m] += self._alpha * weight * td_error
+        kappa = float(self._kappa[m])
+        step = self._alpha
+        if self._params.step_size == "visits":  # 1 / (weighted updates + 1): kappa starts at D + 1
+            step = min(step, 1.0 / (kappa - self._dim))
+        self._q[a_t, m] += step * weight * td_error
         if weight == 0.0:
             return
-        kappa = float(self._kappa[m])
         _kernels.niw_absorb(self._mean[m], self._scatter[m], self._chol[m], s_t, weight, kappa)
         self._kappa[m] = kappa + weight
         self._nu[m] += weight

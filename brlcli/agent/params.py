@@ -15,6 +15,11 @@ NEW_Q_RULES = ("constant", "nearest")
 `constant`: init_q for every action and new_q_taken for a_t (the authors' code); `nearest`: a copy of the l_inf-nearest
 component m_t's column, with Q[a_t, new] = the step's TD target r_t + gamma Q[a', m']."""
 
+STEP_SIZES = ("schedule", "visits")
+"""The step size of the Q update (eq. 8): `schedule`, the paper's global alpha_t; `visits` (outside the paper),
+min(alpha_t, 1 / (kappa_m - D)) for component m, i.e. one over its weighted count of updates plus one, so that a
+component's Q is an average of its TD targets rather than the last of them."""
+
 AT_CAPACITY_POLICIES = ("merge", "skip")
 """What learn() does when it would create a component but `max_components` are in use:
 `merge` updates the l_inf-nearest component m_t with the usual weight rule instead (Q and NIW update);
@@ -58,12 +63,14 @@ class BRLParams:
     """Q[a_t, new] of a component created after the bad action a_t."""
     new_q: str = "constant"
     """How a new component's Q column starts (see NEW_Q_RULES)."""
+    step_size: str = "schedule"
+    """The Q update's step size (see STEP_SIZES); 'schedule' is the paper's."""
 
     def __post_init__(self) -> None:
         """Validate every field; a bad value raises ValueError naming it."""
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name in ("variant", "at_capacity", "new_q"):
+            if f.name in ("variant", "at_capacity", "new_q", "step_size"):
                 if not isinstance(value, str):
                     raise ValueError(f"BRLParams.{f.name} must be a string, got {value!r}")
             elif f.name == "max_components":
@@ -78,6 +85,8 @@ class BRLParams:
         if self.at_capacity not in AT_CAPACITY_POLICIES:
             raise ValueError(f"BRLParams.at_capacity must be one of {', '.join(AT_CAPACITY_POLICIES)}, "
                              f"got {self.at_capacity!r}")
+        if self.step_size not in STEP_SIZES:
+            raise ValueError(f"BRLParams.step_size must be one of {', '.join(STEP_SIZES)}, got {self.step_size!r}")
         if self.new_q not in NEW_Q_RULES:
             raise ValueError(f"BRLParams.new_q must be one of {', '.join(NEW_Q_RULES)}, got {self.new_q!r}")
         if self.max_components < 1:
