@@ -25,6 +25,9 @@ AT_CAPACITY_POLICIES = ("merge", "skip")
 `merge` updates the l_inf-nearest component m_t with the usual weight rule instead (Q and NIW update);
 `skip` leaves Q and the components unchanged. Both report weight_case "capacity" and never raise."""
 
+_CHOICES = {"variant": VARIANTS, "at_capacity": AT_CAPACITY_POLICIES, "new_q": NEW_Q_RULES, "step_size": STEP_SIZES}
+"""The string fields of BRLParams and their allowed values."""
+
 
 @dataclass(frozen=True)
 class BRLParams:
@@ -70,9 +73,10 @@ class BRLParams:
         """Validate every field; a bad value raises ValueError naming it."""
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name in ("variant", "at_capacity", "new_q", "step_size"):
-                if not isinstance(value, str):
-                    raise ValueError(f"BRLParams.{f.name} must be a string, got {value!r}")
+            if f.name in _CHOICES:
+                if not isinstance(value, str) or value not in _CHOICES[f.name]:
+                    raise ValueError(f"BRLParams.{f.name} must be one of {', '.join(_CHOICES[f.name])}, "
+                                     f"got {value!r}")
             elif f.name == "max_components":
                 if isinstance(value, bool) or not isinstance(value, int):
                     raise ValueError(f"BRLParams.max_components must be an integer, got {value!r}")
@@ -80,15 +84,6 @@ class BRLParams:
                 if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
                     raise ValueError(f"BRLParams.{f.name} must be a finite number, got {value!r}")
                 object.__setattr__(self, f.name, float(value))  # ints from JSON or callers become floats
-        if self.variant not in VARIANTS:
-            raise ValueError(f"BRLParams.variant must be one of {', '.join(VARIANTS)}, got {self.variant!r}")
-        if self.at_capacity not in AT_CAPACITY_POLICIES:
-            raise ValueError(f"BRLParams.at_capacity must be one of {', '.join(AT_CAPACITY_POLICIES)}, "
-                             f"got {self.at_capacity!r}")
-        if self.step_size not in STEP_SIZES:
-            raise ValueError(f"BRLParams.step_size must be one of {', '.join(STEP_SIZES)}, got {self.step_size!r}")
-        if self.new_q not in NEW_Q_RULES:
-            raise ValueError(f"BRLParams.new_q must be one of {', '.join(NEW_Q_RULES)}, got {self.new_q!r}")
         if self.max_components < 1:
             raise ValueError(f"BRLParams.max_components must be >= 1, got {self.max_components}")
         unit = ("gamma", "alpha_init", "alpha_final", "tau_init", "tau_final",

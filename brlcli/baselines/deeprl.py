@@ -84,10 +84,14 @@ class DeepRLConfig:
 
         get_weather(self.weather)
         try:
-            RewardParams(target_speed_kmh=self.target_speed_kmh, road_view=self.road_view)
+            self.reward_params()
             DrivingEnv.check_episode_rules(self.offroad_end, 0.0, 0.0)
         except ValueError as exc:
             raise BrlInputError(f"bad deep RL configuration: {exc}") from None
+
+    def reward_params(self) -> RewardParams:
+        """The reward's parameters for this run (as `brl train`'s)."""
+        return RewardParams(target_speed_kmh=self.target_speed_kmh, road_view=self.road_view)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
@@ -190,7 +194,7 @@ def _chunk_seed(seed: int, chunk: int) -> int:
 
 def _make_env(cfg: DeepRLConfig) -> Any:
     return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training",
-                      reward=RewardParams(target_speed_kmh=cfg.target_speed_kmh, road_view=cfg.road_view),
+                      reward=cfg.reward_params(),
                       labeler=labeler_for(cfg.input, cfg.segnet, "--input"), offroad_end=cfg.offroad_end)
 
 

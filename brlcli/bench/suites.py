@@ -90,12 +90,6 @@ def paper_suite(weathers: tuple[int, ...] | None = None, towns: tuple[str, ...] 
     return specs
 
 
-def validation_suite(weathers: tuple[int, ...] | None = None,
-                     towns: tuple[str, ...] | None = None) -> list[EpisodeSpec]:
-    """The paper's suite on the towns' validation routes (for model selection; the test routes stay unseen)."""
-    return paper_suite(weathers, towns, suite="validation")
-
-
 def corl_suite(conditions: tuple[str, ...] | None = None, tasks: tuple[str, ...] | None = None,
                weathers: tuple[int, ...] | None = None) -> list[EpisodeSpec]:
     """CoRL2017: 4 tasks x 25 pose pairs x the weathers of each condition; traffic only in the dynamic task."""
