@@ -118,6 +118,8 @@ def train(
 
     load_town(town)
     check_inputs(cfg)
+    if input == "estimated":
+        _segnet_notice(segnet)
     check_run_dirs(cfg, seed_list, out, resume)
     console = Console(stderr=True)
     if executor == "ray":
@@ -382,6 +384,8 @@ def bench(
         pols = [PolicySpec(agent, name, opts) for name, opts in baseline_specs(agent, model, deploy, segnet)]
     for p in pols:  # load every model once here: a bad file fails before anything is written
         build_policy(p.kind, p.name, p.options)
+    if deploy == "estimated" and agent in ("brl", "mp", "dqn"):
+        _segnet_notice(segnet)
     config = {"suite": suite, "suite_version": suite_version(suite), "town_versions": town_versions(specs),
               "policies": [{"kind": p.kind, "name": p.name, **p.options} for p in pols], "deploy": deploy,
               "seed": seed, "selection": {"conditions": conditions, "tasks": tasks, "weathers": weathers,
@@ -483,26 +487,39 @@ def report(
 def train_seg(
     data: Annotated[list[str], typer.Option(help="Training bags: bag directories, directories of bags, globs.")],
     val: Annotated[list[str] | None, typer.Option(help="A validation set (repeatable; the first picks the best "
-                                                       "checkpoint). None: hold out episodes of --data.")] = None,
+                                                       "epoch and calibrates it). None: hold out episodes of --data.")]
+    = None,
     val_fraction: Annotated[float, typer.Option(help="Share of --data episodes held out when no --val.")] = 0.1,
     epochs: Annotated[int, typer.Option(help="Training epochs.")] = 14,
     batch_size: Annotated[int, typer.Option(help="Batch size (>= 4).")] = 16,
+    class_weights: Annotated[str, typer.Option(help="Cross-entropy class weights: enet (1 / ln(1.02 + p_c)) or "
+                                                    "none.")] = "enet",
+    fine_channels: Annotated[int, typer.Option(help="Channels of the output-stride-2 refinement (0: none, the "
+                                                    "brl 0.1 net).")] = 0,
+    select: Annotated[str, typer.Option(help="Best epoch by the first validation set's miou (category mean IoU) "
+                                             "or state (mean state L1).")] = "miou",
     seed: Annotated[int, typer.Option(help="Seed of initialisation, order and augmentation.")] = 0,
     workers: Annotated[int, typer.Option(help="CPU threads for torch.")] = 2,
-    out: Annotated[Path, typer.Option("--out", help="Output directory (segnet.pt = best, last.pt, metrics.jsonl).")]
+    out: Annotated[Path, typer.Option("--out", help="Output directory (segnet.pt = best epoch, calibrated; best.pt, "
+                                                    "last.pt, metrics.jsonl, calibration.json).")]
     = Path("runs/segnet"),
     resume: Annotated[bool, typer.Option("--resume", help="Continue from the last finished epoch in --out.")] = False,
 ) -> None:
-    """Train the EncNet-style segmentation net on frames recorded by brl collect."""
+    """Train the EncNet-style segmentation net on frames recorded by brl collect, then calibrate it for the state."""
     import json
 
     from rich.console import Console
 
     from brlcli.provenance import atomic_write_json, provenance
     from brlcli.segdata import load_frames, resolve_data
+    from brlcli.segnet.model import SegNetConfig
     from brlcli.segnet.train import SegTrainConfig, train_segnet
 
-    cfg = SegTrainConfig(epochs=epochs, batch_size=batch_size, seed=seed, threads=workers)
+    if fine_channels < 0:
+        raise_input("--fine-channels must be >= 0")
+    cfg = SegTrainConfig(epochs=epochs, batch_size=batch_size, seed=seed, threads=workers,
+                         class_weighting=class_weights, select=select,
+                         net=SegNetConfig(fine=fine_channels).to_dict())
     train_bags, val_bags = resolve_data(data, val, val_fraction, seed)
     record = provenance({**cfg.to_dict(), "data": [str(b) for b in train_bags],
                          "val": {k: [str(b) for b in v] for k, v in val_bags.items()}})
@@ -521,7 +538,10 @@ def train_seg(
     atomic_write_json(cfg_path, record)
 
     def report(r: dict) -> None:
-        vals = "  ".join(f"{k}: mIoU cat {r[k]['miou_categories']:.3f} cls {r[k]['miou_classes']:.3f}"
+        if "calibration" in r:
+            console.print(f"calibration on {next(iter(val_frames))}: {r['calibration']}")
+            return
+        vals = "  ".join(f"{k}: mIoU cat {r[k]['miou_categories']:.3f} state L1 {r[k]['state_l1']:.3f}"
                          for k in val_frames)
         console.print(f"epoch {r['epoch']:3d}/{epochs}  loss {r['loss']:.4f}  {vals}  ({r['wall_s']:.0f} s)")
 
@@ -530,8 +550,115 @@ def train_seg(
     except KeyboardInterrupt:
         console.print(f"interrupted: finished epochs are saved; continue with --resume --out {out}")
         raise typer.Exit(130) from None
-    console.print(f"best mean category IoU on {next(iter(val_frames))}: {result['best']:.3f}")
+    console.print(f"best epoch by {select} on {next(iter(val_frames))}: {result['best']:.3f}; calibrated:")
+    calibrated = {name: sets["calibrated"] for name, sets in result["calibration"]["sets"].items()}
+    _table_console().print(_seg_table(calibrated, "segmentation net (calibrated)"))
     typer.echo(str(out / "segnet.pt"))
+
+
+def _table_console():  # -> rich.console.Console
+    """A stdout console wide enough for the segmentation tables, also when piped (rich's default is then 80)."""
+    from rich.console import Console
+
+    console = Console()
+    return console if console.is_terminal else Console(width=160)
+
+
+def _seg_table(results: dict, title: str):  # -> rich.table.Table
+    """IoU and state error per set of frames (what `brl eval-seg` and `brl train-seg` print)."""
+    from rich.table import Table
+
+    table = Table(title=title)
+    for col in ("set", "frames", "mIoU 5 cat", "road", "line", "off-road", "dynamic", "static", "state L1",
+                "line bias", "road bias", "line area", "road area"):
+        table.add_column(col, justify="left" if col == "set" else "right")
+
+    def num(value: float | None, fmt: str) -> str:
+        return "–" if value is None else format(value, fmt)
+
+    for name, r in results.items():
+        iou = r["iou_categories"]
+        table.add_row(name, str(r["frames"]), f"{r['miou_categories']:.3f}",
+                      *(num(iou[k], ".3f") for k in ("road", "road_line", "off_road", "dynamic", "static")),
+                      f"{r['state_l1']:.3f}", num(r["state_bias"]["road_line"], "+.3f"),
+                      num(r["state_bias"]["road"], "+.3f"), num(r["area_ratio"]["road_line"], ".2f") + "x",
+                      num(r["area_ratio"]["road"], ".2f") + "x")
+    return table
+
+
+@app.command("eval-seg")
+def eval_seg(
+    data: Annotated[list[str], typer.Option(help="Recorded bags to evaluate on (repeatable: one set each).")],
+    segnet: Annotated[str | None, typer.Option(help="Segmentation-net file (default: the shipped one).")] = None,
+    uncalibrated: Annotated[bool, typer.Option("--uncalibrated", help="Ignore the file's calibration (logit "
+                                                                     "offsets).")] = False,
+    out: Annotated[Path | None, typer.Option("--out", help="Also write the figures to this JSON file.")] = None,
+) -> None:
+    """IoU and the state error (L1 between GT and estimated states, bias, area ratios) of a net on bags."""
+    from rich.console import Console
+
+    from brlcli.bags import find_bags
+    from brlcli.models import default_segnet_path
+    from brlcli.provenance import atomic_write_json, provenance
+    from brlcli.segdata import load_frames
+    from brlcli.segnet.filetools import evaluate_file
+    from brlcli.segnet.io import load_segnet
+
+    path = Path(segnet) if segnet else default_segnet_path()
+    load_segnet(path)  # a bad file fails before the bags are read
+    sets = {_set_name(d): find_bags([d]) for d in data}
+    if out is not None and out.is_dir():
+        raise_input(f"--out {out} is a directory; give a JSON file name")
+    console = Console(stderr=True)
+    with console.status("reading bags"):
+        frames = {name: load_frames(bags) for name, bags in sets.items()}
+    with console.status("segmenting"):
+        result = evaluate_file(path, frames, calibrated=not uncalibrated)
+    if result["calibration"] == "none in file":
+        console.print(f"note: {path} carries no calibration (format {result['format_version']})")
+    _table_console().print(_seg_table(result["sets"], f"{path} ({result['calibration']} calibration)"))
+    if out is not None:
+        atomic_write_json(out, provenance({"segnet": str(path), "data": {k: [str(b) for b in v]
+                                                                          for k, v in sets.items()},
+                                           "uncalibrated": uncalibrated}) | {"results": result})
+        typer.echo(str(out))
+
+
+def _set_name(data: str) -> str:
+    """A data set's name in tables: its directory name."""
+    return Path(data).name or str(data)
+
+
+@app.command("calibrate-seg")
+def calibrate_seg(
+    data: Annotated[list[str], typer.Option(help="Held-out recorded bags to fit the calibration on (not the "
+                                                 "net's training bags, not the ones you report on).")],
+    out: Annotated[Path, typer.Option("--out", help="The calibrated net's file (must not exist).")],
+    segnet: Annotated[str | None, typer.Option(help="Segmentation-net file (default: the shipped one).")] = None,
+) -> None:
+    """Fit a net's per-class logit offsets so that its labels give the states of the ground truth."""
+    from rich.console import Console
+
+    from brlcli.bags import find_bags
+    from brlcli.models import default_segnet_path
+    from brlcli.segdata import load_frames
+    from brlcli.segnet.filetools import calibrate_file
+    from brlcli.segnet.io import load_segnet
+
+    path = Path(segnet) if segnet else default_segnet_path()
+    load_segnet(path, deployable=False)
+    bags = find_bags(list(data))
+    if out.exists():
+        raise_input(f"{out} already exists; choose another --out")
+    console = Console(stderr=True)
+    with console.status("reading bags"):
+        frames = load_frames(bags)
+    name = ",".join(_set_name(d) for d in data)
+    with console.status("calibrating") as status:
+        record = calibrate_file(path, frames, out, name, progress=lambda m: status.update(f"calibrating: {m}"))
+    _table_console().print(_seg_table({f"{name} before": record["sets"][name]["uncalibrated"],
+                                f"{name} after": record["sets"][name]["calibrated"]}, f"{out}"))
+    typer.echo(str(out))
 
 
 @app.command("train-il")
@@ -616,9 +743,10 @@ def train_rl(
                        eval_every=eval_every, eval_suite=eval_suite, seed=seed,
                        segnet=segnet if input == "estimated" else None)
     if input == "estimated":
-        from brlcli.segnet.infer import load_labeler
+        from brlcli.segnet import labeler_for
 
-        load_labeler(segnet)
+        labeler_for(input, segnet, "--input")
+        _segnet_notice(segnet)
     check_run_dir(cfg, out, resume)
     console = Console(stderr=True)
     columns = (TextColumn(f"{algo}"), BarColumn(), MofNCompleteColumn(),
@@ -644,6 +772,15 @@ def train_rl(
         line += f", paper-suite success {s['final_eval']['success']:.0%}"
     console.print(line)
     typer.echo(str(out / "drl.pt"))
+
+
+def _segnet_notice(segnet: str | None) -> None:
+    """Say on one line (stderr) when the estimated input comes from an uncalibrated (brl 0.1) net file."""
+    from brlcli.segnet.infer import uncalibrated_notice
+
+    message = uncalibrated_notice(segnet)
+    if message:
+        typer.echo(f"brl: notice: {message}", err=True)
 
 
 def raise_input(message: str) -> None:

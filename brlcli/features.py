@@ -34,13 +34,26 @@ def region_index(height: int, width: int) -> np.ndarray:
     return rows[:, None] * 3 + cols[None, :]
 
 
+def category_counts(labels: np.ndarray) -> np.ndarray:
+    """Pixel count of each category in each region: (H, W) -> (6, 5), or a batch (N, H, W) -> (N, 6, 5)."""
+    labels = np.asarray(labels)
+    batch = labels.reshape(-1, *labels.shape[-2:])
+    n, h, w = batch.shape
+    bins = region_index(h, w).ravel()[None, :] * N_CATEGORIES + CLASS_TO_CATEGORY[batch.reshape(n, -1)]
+    bins += (STATE_DIM * np.arange(n))[:, None]
+    counts = np.bincount(bins.ravel(), minlength=n * STATE_DIM).reshape(n, N_REGIONS, N_CATEGORIES)
+    return counts.reshape(*labels.shape[:-2], N_REGIONS, N_CATEGORIES)
+
+
+def states_from_counts(counts: np.ndarray) -> np.ndarray:
+    """Region x category pixel counts (..., 6, 5) -> states (..., 30): road lines weighted, L1-normalised."""
+    weighted = (np.asarray(counts, np.float64) * CATEGORY_WEIGHTS).reshape(*np.shape(counts)[:-2], STATE_DIM)
+    return weighted / weighted.sum(-1, keepdims=True)
+
+
 def state_vector(labels: np.ndarray) -> np.ndarray:
     """Label image (H, W) of CARLA ids -> 30-vector (region-major, 5 categories each), L1-normalised."""
-    h, w = labels.shape
-    bins = region_index(h, w) * N_CATEGORIES + CLASS_TO_CATEGORY[labels]
-    counts = np.bincount(bins.ravel(), minlength=STATE_DIM).astype(np.float64)
-    counts *= np.tile(CATEGORY_WEIGHTS, N_REGIONS)
-    return counts / counts.sum()
+    return states_from_counts(category_counts(labels))
 
 
 ROAD_VIEW_CATEGORIES = {"road": (0,), "road+line": (0, 1)}

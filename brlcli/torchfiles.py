@@ -20,12 +20,14 @@ def save_torch_doc(path: Path, fmt: str, version: int, payload: dict[str, Any]) 
     atomic_write_bytes(Path(path), buf.getvalue())
 
 
-def load_torch_doc(path: Path, fmt: str, version: int, what: str, train_hint: str,
+def load_torch_doc(path: Path, fmt: str, version: int | tuple[int, ...], what: str, train_hint: str,
                    keys: Sequence[str] = ()) -> dict[str, Any]:
-    """Read a model file without unpickling objects; check its format, version and required `keys`.
+    """Read a model file without unpickling objects; check its format, version (one, or several readable ones)
+    and required `keys`.
 
     `what` names the file in errors ("IL model"), `train_hint` says how to make one ("brl train-il").
     """
+    versions = (version,) if isinstance(version, int) else tuple(version)
     path = Path(path)
     if not path.is_file():
         raise BrlInputError(f"{what} {path} does not exist; train one with {train_hint}")
@@ -35,8 +37,10 @@ def load_torch_doc(path: Path, fmt: str, version: int, what: str, train_hint: st
         raise BrlInputError(f"{path} is not a brl {what} ({type(exc).__name__})") from None
     if not isinstance(doc, dict) or doc.get("format") != fmt:
         raise BrlInputError(f"{path} is not a brl {what}")
-    if doc.get("format_version") != version:
-        raise BrlInputError(f"{what} {path} has format version {doc.get('format_version')}, this brl reads {version}")
+    if doc.get("format_version") not in versions:
+        readable = " or ".join(str(v) for v in versions)
+        raise BrlInputError(f"{what} {path} has format version {doc.get('format_version')}, this brl reads "
+                            f"{readable}; make a new one with {train_hint}")
     for key in keys:
         if key not in doc:
             raise BrlInputError(f"{what} {path} lacks '{key}'")

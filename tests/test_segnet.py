@@ -7,17 +7,11 @@ import pytest
 import torch
 
 from brlcli.errors import BrlInputError
-from brlcli.segnet.infer import Segmenter
+from brlcli.segnet.infer import Segmenter, uncalibrated_notice
 from brlcli.segnet.io import SEGNET_FORMAT, load_segnet, save_checkpoint
+from brlcli.segnet.metrics import category_confusion, confusion, iou_from_confusion
 from brlcli.segnet.model import Encoding, SegNet, SegNetConfig
-from brlcli.segnet.train import (
-    SegTrainConfig,
-    category_confusion,
-    confusion,
-    iou_from_confusion,
-    presence_targets,
-    train_segnet,
-)
+from brlcli.segnet.train import SegTrainConfig, presence_targets, train_segnet
 
 TINY = SegNetConfig(stem=8, widths=(8, 16, 16, 16), enc_channels=16, codewords=4).to_dict()
 
@@ -88,8 +82,8 @@ def test_tiny_training_lowers_the_loss_and_is_deterministic(tmp_path: Path) -> N
     assert losses[-1] < losses[0]
     b = train_segnet(frames, {"val": frames[:8]}, cfg, tmp_path / "b")
     assert a["history"] == [{**r, "wall_s": a["history"][i]["wall_s"]} for i, r in enumerate(b["history"])]
-    net_a, _ = load_segnet(tmp_path / "a" / "last.pt")
-    net_b, _ = load_segnet(tmp_path / "b" / "last.pt")
+    net_a, _ = load_segnet(tmp_path / "a" / "last.pt", deployable=False)
+    net_b, _ = load_segnet(tmp_path / "b" / "last.pt", deployable=False)
     for pa, pb in zip(net_a.state_dict().values(), net_b.state_dict().values(), strict=True):
         torch.testing.assert_close(pa, pb, atol=0, rtol=0)
 
@@ -102,8 +96,8 @@ def test_resume_continues_to_the_same_weights(tmp_path: Path) -> None:
     with pytest.raises(KeyboardInterrupt):
         train_segnet(frames, {"val": frames[:8]}, full, tmp_path / "cut", progress=_stop_after_first)
     train_segnet(frames, {"val": frames[:8]}, full, tmp_path / "cut", resume=True)
-    net_a, _ = load_segnet(tmp_path / "full" / "last.pt")
-    net_b, _ = load_segnet(tmp_path / "cut" / "last.pt")
+    net_a, _ = load_segnet(tmp_path / "full" / "last.pt", deployable=False)
+    net_b, _ = load_segnet(tmp_path / "cut" / "last.pt", deployable=False)
     for pa, pb in zip(net_a.state_dict().values(), net_b.state_dict().values(), strict=True):
         torch.testing.assert_close(pa, pb, atol=0, rtol=0)
 
@@ -113,20 +107,30 @@ def _stop_after_first(record: dict) -> None:
         raise KeyboardInterrupt
 
 
-def test_files_round_trip_and_bad_files_are_clear_errors(tmp_path: Path) -> None:
+def _tiny_file(path: Path, offsets: list[float] | None = None, version: int | None = None) -> Path:
     torch.manual_seed(1)
     net = SegNet(SegNetConfig.from_dict(TINY)).eval()
     meta = {"mean": [0.5, 0.5, 0.5], "std": [0.2, 0.2, 0.2], "input_size": [32, 64]}
-    save_checkpoint(tmp_path / "n.pt", net, meta)
+    if offsets is not None:
+        meta["logit_offsets"] = offsets
+    save_checkpoint(path, net, meta)
+    if version is not None:
+        torch.save({**torch.load(path, weights_only=True), "format_version": version}, path)
+    return path
+
+
+def test_files_round_trip_and_bad_files_are_clear_errors(tmp_path: Path) -> None:
+    _tiny_file(tmp_path / "n.pt", offsets=[0.0] * 13)
     seg = Segmenter(tmp_path / "n.pt")
     rgb = _frames(1)[0][0]
     labels = seg.predict(rgb)
-    assert labels.shape == (32, 64) and labels.dtype == np.uint8
+    assert labels.shape == (32, 64) and labels.dtype == np.uint8 and seg.calibrated
     again = Segmenter(tmp_path / "n.pt").predict(rgb)
     np.testing.assert_array_equal(labels, again)
     with pytest.raises(BrlInputError, match="expects 64x32"):
         seg.predict(np.zeros((88, 200, 3), np.uint8))
     doc = torch.load(tmp_path / "n.pt", weights_only=True)
+    assert doc["format"] == SEGNET_FORMAT and doc["format_version"] == 2
     for name, change in (("version", {"format_version": 99}), ("format", {"format": "other"})):
         torch.save({**doc, **change}, tmp_path / f"{name}.pt")
         with pytest.raises(BrlInputError):
@@ -140,4 +144,36 @@ def test_files_round_trip_and_bad_files_are_clear_errors(tmp_path: Path) -> None
         load_segnet(tmp_path / "junk.pt")
     with pytest.raises(BrlInputError, match="does not exist"):
         load_segnet(tmp_path / "absent.pt")
-    assert doc["format"] == SEGNET_FORMAT
+    torch.save({**doc, "extra": {**doc["extra"], "logit_offsets": [0.0] * 5}}, tmp_path / "short.pt")
+    with pytest.raises(BrlInputError, match="malformed calibration"):
+        load_segnet(tmp_path / "short.pt")
+
+
+def test_calibration_is_required_of_new_files_and_optional_for_old_ones(tmp_path: Path) -> None:
+    _tiny_file(tmp_path / "uncal.pt")  # a format-2 training checkpoint: no offsets
+    with pytest.raises(BrlInputError, match=r"no calibration.*brl calibrate-seg"):
+        load_segnet(tmp_path / "uncal.pt")
+    _, meta = load_segnet(tmp_path / "uncal.pt", deployable=False)
+    assert meta["logit_offsets"] is None
+    _tiny_file(tmp_path / "v1.pt", version=1)  # brl 0.1's files load, as uncalibrated nets
+    seg = Segmenter(tmp_path / "v1.pt")
+    assert not seg.calibrated and seg.predict(_frames(1)[0][0]).shape == (32, 64)
+    assert "uncalibrated" in uncalibrated_notice(tmp_path / "v1.pt")
+    _tiny_file(tmp_path / "v2.pt", offsets=[0.0] * 13)
+    assert uncalibrated_notice(tmp_path / "v2.pt") is None
+
+
+def test_logit_offsets_change_the_labels_and_both_backends_agree(tmp_path: Path) -> None:
+    rgb = _frames(1)[0][0]
+    base = Segmenter(_tiny_file(tmp_path / "a.pt", offsets=[0.0] * 13)).predict(rgb)
+    push = [0.0] * 13
+    push[6] = 1e4  # road line wins everywhere
+    forced = Segmenter(_tiny_file(tmp_path / "b.pt", offsets=push)).predict(rgb)
+    assert (forced == 6).all() and not (base == 6).all()
+    for path in (tmp_path / "a.pt", tmp_path / "b.pt"):
+        frames = _frames(6)
+        fast, ref = Segmenter(path), Segmenter(path, backend="torch")
+        for rgb_i, _ in frames:
+            np.testing.assert_array_equal(fast.predict(rgb_i), ref.predict(rgb_i))
+    with pytest.raises(BrlInputError, match="backend"):
+        Segmenter(tmp_path / "a.pt", backend="tpu")

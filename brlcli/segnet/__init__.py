@@ -20,10 +20,17 @@ def check_input_source(source: str, option: str = "--deploy") -> None:
 
 def labeler_for(source: str, segnet: str | None = None,
                 option: str = "--deploy") -> Callable[[np.ndarray], np.ndarray] | None:
-    """None for ground-truth labels; for 'estimated' the RGB -> labels function of the given (or shipped) net."""
+    """None for ground-truth labels; for 'estimated' the RGB -> labels function of the given (or shipped) net,
+    which must take the camera's image size."""
     check_input_source(source, option)
     if source == "gt":
         return None
-    from brlcli.segnet.infer import load_labeler
+    from brlcli.segnet.infer import load_segmenter
+    from brlcli.sim.camera import CameraConfig
 
-    return load_labeler(segnet)
+    seg = load_segmenter(segnet)
+    cam = CameraConfig()
+    if seg.input_size != (cam.height, cam.width):
+        raise BrlInputError(f"segmentation net {seg.path} takes {seg.input_size[1]}x{seg.input_size[0]} images, the "
+                            f"camera gives {cam.width}x{cam.height}; train one on frames of that size")
+    return seg.predict

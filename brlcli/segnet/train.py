@@ -16,13 +16,16 @@ import torch
 import torch.nn.functional as F
 
 from brlcli.errors import BrlInputError
-from brlcli.features import CLASS_TO_CATEGORY, N_CATEGORIES
 from brlcli.provenance import atomic_write_bytes
-from brlcli.segnet.io import load_checkpoint, save_checkpoint
+from brlcli.segnet.calibrate import calibrate
+from brlcli.segnet.infer import batch_logits, normalise
+from brlcli.segnet.io import load_checkpoint, load_segnet, save_checkpoint
+from brlcli.segnet.metrics import SegMetrics
 from brlcli.segnet.model import NUM_CLASSES, SegNet, SegNetConfig
 
 Frames = Sequence[tuple[np.ndarray, np.ndarray]]
-CATEGORY_NAMES = ("road", "road_line", "off_road", "dynamic", "static")
+CLASS_WEIGHTINGS = ("enet", "none")
+SELECTIONS = ("miou", "state")
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,8 @@ class SegTrainConfig:
     threads: int = 2
     flip: bool = True
     colour_jitter: float = 0.25
+    class_weighting: str = "enet"  # enet: 1 / ln(1.02 + p_c); none: plain cross-entropy
+    select: str = "miou"  # best epoch by the first validation set's category mIoU, or by its state L1 ("state")
     net: dict[str, Any] = field(default_factory=lambda: SegNetConfig().to_dict())
 
     def __post_init__(self) -> None:
@@ -48,30 +53,15 @@ class SegTrainConfig:
             raise BrlInputError("--epochs must be >= 1 and --batch-size >= 4 (BatchNorm needs batches)")
         if self.threads < 1:
             raise BrlInputError("--workers must be at least 1")
+        if self.select not in SELECTIONS:
+            raise BrlInputError(f"--select must be {' or '.join(SELECTIONS)}, not '{self.select}'")
+        if self.class_weighting not in CLASS_WEIGHTINGS:
+            raise BrlInputError(f"--class-weights must be {' or '.join(CLASS_WEIGHTINGS)}, "
+                                f"not '{self.class_weighting}'")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
         return asdict(self)
-
-
-def confusion(pred: np.ndarray, truth: np.ndarray, n: int) -> np.ndarray:
-    """n x n confusion matrix (rows truth, columns prediction) of integer label arrays."""
-    return np.bincount(truth.ravel().astype(np.int64) * n + pred.ravel(), minlength=n * n).reshape(n, n)
-
-
-def iou_from_confusion(cm: np.ndarray) -> np.ndarray:
-    """IoU per class (nan where a class never occurs in truth or prediction)."""
-    tp = np.diag(cm).astype(np.float64)
-    denom = cm.sum(0) + cm.sum(1) - tp
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(denom > 0, tp / denom, np.nan)
-
-
-def category_confusion(cm: np.ndarray) -> np.ndarray:
-    """Collapse a 13-class confusion matrix to the paper's 5 state categories."""
-    m = np.zeros((N_CATEGORIES, NUM_CLASSES))
-    m[CLASS_TO_CATEGORY[:NUM_CLASSES], np.arange(NUM_CLASSES)] = 1
-    return m @ cm @ m.T
 
 
 def presence_targets(labels: np.ndarray) -> np.ndarray:
@@ -81,8 +71,10 @@ def presence_targets(labels: np.ndarray) -> np.ndarray:
     return (counts > 0).astype(np.float32)
 
 
-def class_weights(frames: Frames) -> np.ndarray:
-    """ENet-style weights 1 / ln(1.02 + p_c) from the training labels' class frequencies."""
+def class_weights(frames: Frames, weighting: str = "enet") -> np.ndarray:
+    """Cross-entropy class weights: ENet-style 1 / ln(1.02 + p_c) from the training labels' frequencies, or ones."""
+    if weighting == "none":
+        return np.ones(NUM_CLASSES)
     counts = np.zeros(NUM_CLASSES)
     for _, labels in frames:
         counts += np.bincount(labels.ravel(), minlength=NUM_CLASSES)[:NUM_CLASSES]
@@ -90,27 +82,16 @@ def class_weights(frames: Frames) -> np.ndarray:
     return 1.0 / np.log(1.02 + p)
 
 
-def _to_tensor(rgb: np.ndarray, mean: np.ndarray, std: np.ndarray) -> torch.Tensor:
-    x = (rgb.astype(np.float32) / 255.0 - mean) / std
-    return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2)))
-
-
-def evaluate(net: SegNet, frames: Frames, mean: np.ndarray, std: np.ndarray, batch: int = 32) -> dict[str, Any]:
-    """IoU per class and per category, and their means, on labelled frames."""
-    net.eval()
-    cm = np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64)
-    with torch.inference_mode():
-        for i in range(0, len(frames), batch):
-            rgb = np.stack([f[0] for f in frames[i : i + batch]])
-            labels = np.stack([f[1] for f in frames[i : i + batch]])
-            pred = net(_to_tensor(rgb, mean, std))[0].argmax(1).numpy()
-            cm += confusion(pred, labels, NUM_CLASSES)
-    per_class = iou_from_confusion(cm)
-    per_cat = iou_from_confusion(category_confusion(cm))
-    return {"miou_classes": float(np.nanmean(per_class)), "miou_categories": float(np.nanmean(per_cat)),
-            "iou_classes": [None if np.isnan(v) else round(float(v), 6) for v in per_class],
-            "iou_categories": dict(zip(CATEGORY_NAMES, [None if np.isnan(v) else round(float(v), 6) for v in per_cat],
-                                       strict=True))}
+def evaluate(net: SegNet, frames: Frames, mean: np.ndarray, std: np.ndarray,
+             logit_offsets: np.ndarray | None = None, batch: int = 32) -> dict[str, Any]:
+    """IoU per class and per category with their means, and the state error, on labelled frames."""
+    metrics = SegMetrics()
+    bias = 0.0 if logit_offsets is None else np.asarray(logit_offsets, np.float32)[None, :, None, None]
+    for i in range(0, len(frames), batch):
+        chunk = frames[i : i + batch]
+        logits = batch_logits(net, np.stack([f[0] for f in chunk]), mean, std, batch)
+        metrics.add(np.stack([f[1] for f in chunk]), (logits + bias).argmax(1))
+    return metrics.result()
 
 
 def _augment(rgb: np.ndarray, labels: np.ndarray, rng: np.random.Generator, cfg: SegTrainConfig
@@ -132,7 +113,8 @@ def _augment(rgb: np.ndarray, labels: np.ndarray, rng: np.random.Generator, cfg:
 
 def train_segnet(train: Frames, val_sets: dict[str, Frames], cfg: SegTrainConfig, out: Path,
                  progress: Callable[[dict], None] | None = None, resume: bool = False) -> dict[str, Any]:
-    """Train on `train`, validate on each named set per epoch; best (first val set, category mIoU) -> segnet.pt."""
+    """Train on `train`, validate on each named set per epoch (IoU and state error); the best epoch (first
+    validation set) -> best.pt, then calibrated on that set -> segnet.pt (see `calibrate_run`)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if len(train) < cfg.batch_size:
@@ -145,7 +127,7 @@ def train_segnet(train: Frames, val_sets: dict[str, Frames], cfg: SegTrainConfig
     mean = rgb_all.mean(axis=(0, 1, 2)).astype(np.float32)
     std = (rgb_all.std(axis=(0, 1, 2)) + 1e-6).astype(np.float32)
     del rgb_all
-    weights = torch.tensor(class_weights(train), dtype=torch.float32)
+    weights = torch.tensor(class_weights(train, cfg.class_weighting), dtype=torch.float32)
     net = SegNet(SegNetConfig.from_dict(cfg.net))
     opt = torch.optim.SGD(net.parameters(), lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
     steps_per_epoch = len(train) // cfg.batch_size
@@ -176,7 +158,7 @@ def train_segnet(train: Frames, val_sets: dict[str, Frames], cfg: SegTrainConfig
                 g["lr"] = cfg.lr * (1 - it / total) ** cfg.poly_power
             idx = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])
             rgb, labels = _augment(rgb_u8[idx], labels_all[idx], rng, cfg)
-            x = _to_tensor(rgb, mean, std)
+            x = normalise(rgb, mean, std)
             y = torch.from_numpy(labels.astype(np.int64))
             present = torch.from_numpy(presence_targets(labels))
             logits, aux, presence = net(x)
@@ -192,16 +174,54 @@ def train_segnet(train: Frames, val_sets: dict[str, Frames], cfg: SegTrainConfig
         for name, frames in val_sets.items():
             record[name] = evaluate(net, frames, mean, std)
         history.append(record)
-        score = record[next(iter(val_sets))]["miou_categories"] if val_sets else -record["loss"]
+        score = _selection_score(record, val_sets, cfg.select)
         extra = {**meta, "epoch": epoch + 1, "best": max(best, score), "history": json.dumps(history),
                  "optimizer": opt.state_dict(), "torch_rng": torch.get_rng_state(),
                  "numpy_rng": json.dumps(rng.bit_generator.state)}
         if score > best:
             best = score
-            save_checkpoint(out / "segnet.pt", net, {**meta, "epoch": epoch + 1, "metrics": json.dumps(record)})
+            save_checkpoint(out / "best.pt", net, {**meta, "epoch": epoch + 1, "metrics": json.dumps(record)})
         save_checkpoint(out / "last.pt", net, extra)
         atomic_write_bytes(out / "metrics.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n"
                                                          for r in history).encode())
         if progress:
             progress(record)
-    return {"epochs": len(history), "best": best, "history": history}
+    if (out / "segnet.pt").exists():
+        calibration = json.loads((out / "calibration.json").read_text())
+    else:  # after the last epoch (also when a resumed run had finished its epochs)
+        calibration = calibrate_run(out, val_sets, progress)
+    return {"epochs": len(history), "best": best, "history": history, "calibration": calibration}
+
+
+def _selection_score(record: dict[str, Any], val_sets: dict[str, Frames], select: str) -> float:
+    """Higher is better: the first validation set's category mIoU, or minus its state L1; else minus the loss."""
+    if not val_sets:
+        return -record["loss"]
+    first = record[next(iter(val_sets))]
+    return first["miou_categories"] if select == "miou" else -first["state_l1"]
+
+
+def calibrate_run(out: Path, val_sets: dict[str, Frames], progress: Callable[[dict], None] | None = None
+                  ) -> dict[str, Any]:
+    """Calibrate the run's best epoch on its first validation set -> segnet.pt (+ calibration.json: before/after)."""
+    net, meta = load_segnet(out / "best.pt", deployable=False)
+    mean, std = np.asarray(meta["mean"], np.float32), np.asarray(meta["std"], np.float32)
+    fit_name = next(iter(val_sets), None)
+    if fit_name is None:  # nothing held out to fit on: the identity calibration
+        offsets, used = np.zeros(NUM_CLASSES), 0
+    else:
+        def note(message: str) -> None:
+            if progress:
+                progress({"calibration": message})
+
+        offsets, used = calibrate(net, mean, std, val_sets[fit_name], progress=note)
+    record: dict[str, Any] = {"fitted_on": fit_name, "frames": used, "objective": "mean state L1",
+                              "logit_offsets": [round(float(v), 6) for v in offsets], "sets": {}}
+    for name, frames in val_sets.items():
+        record["sets"][name] = {"uncalibrated": evaluate(net, frames, mean, std),
+                                "calibrated": evaluate(net, frames, mean, std, offsets)}
+    extra = {k: v for k, v in meta.items() if k not in ("format_version", "logit_offsets")}
+    save_checkpoint(out / "segnet.pt", net, {**extra, "logit_offsets": [float(v) for v in offsets],
+                                             "calibration": json.dumps(record)})
+    atomic_write_bytes(out / "calibration.json", (json.dumps(record, indent=2, sort_keys=True) + "\n").encode())
+    return record
