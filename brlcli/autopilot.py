@@ -1,5 +1,7 @@
-"""The privileged expert: pure-pursuit steering along a planned route, speed control, stopping for traffic, and
-CIL-style noise injection (temporary steering perturbations the expert then recovers from)."""
+"""The privileged expert: pure-pursuit steering along a planned route, speed control, stopping for traffic,
+CIL-style noise injection (temporary steering perturbations the expert then recovers from) and, for perception
+data, lateral excursions (outside CIL: for a few seconds the car follows a path beside its lane, on a sidewalk or
+in the opposite lane, as a failing driving agent does, so that the segmentation net sees those views too)."""
 
 from __future__ import annotations
 
@@ -27,16 +29,32 @@ class NoiseConfig:
     amplitude: tuple[float, float] = (0.2, 0.5)
 
 
+@dataclass(frozen=True)
+class ExcursionConfig:
+    """Lateral excursions: start with `rate_per_s`; for `duration_s` the applied control follows the route offset
+    sideways by `offset_m` (+ = right of the driving direction), drawn from one of `offsets_m`'s ranges (right
+    sidewalk, opposite lane, left sidewalk), at `speed_kmh`, ending early when traffic is ahead; the recorded expert
+    control stays the clean one."""
+
+    rate_per_s: float = 0.05
+    duration_s: tuple[float, float] = (3.0, 8.0)
+    offsets_m: tuple[tuple[float, float], ...] = ((2.5, 4.0), (-5.0, -3.0), (-7.5, -6.0))
+    speed_kmh: float = 12.0
+
+
 class Autopilot:
     """Drives a world along a route; `control()` gives the (noisy) applied and the clean expert control."""
 
     def __init__(self, world: World, route: Route, rng: np.random.Generator, noise: NoiseConfig | None = None,
-                 cruise_kmh: float = CRUISE_KMH) -> None:
+                 cruise_kmh: float = CRUISE_KMH, excursions: ExcursionConfig | None = None) -> None:
         self.world = world
         self.route = route
         self.rng = rng
         self.noise = noise
         self.cruise_kmh = cruise_kmh
+        self.excursions = excursions
+        self._excursion_left_s = 0.0
+        self._excursion_offset_m = 0.0
         self._noise_left_s = 0.0
         self._noise_total_s = 1.0
         self._noise_peak = 0.0
@@ -66,19 +84,29 @@ class Autopilot:
         ahead = (fwd > 0) & (fwd < 25.0) & (np.abs(lat) < 1.8)
         return float((fwd[ahead] - 2.25 - boxes[ahead, 4] / 2).min()) if ahead.any() else math.inf
 
-    def expert(self, m: Measurements) -> Control:
-        """Clean expert control for the current measurements."""
+    def expert(self, m: Measurements, offset_m: float = 0.0, speed_kmh: float | None = None) -> Control:
+        """Clean expert control for the current measurements (along a path `offset_m` right of the route, at most
+        `speed_kmh`, during an excursion)."""
         s, _ = self.route.project(m.x, m.y)
         speed = m.forward_speed_kmh
         look = max(5.0, 0.9 * abs(speed) / 3.6)
         k = min(int(np.searchsorted(self.route.cum_s, s + look)), len(self.route.points) - 1)
         tx, ty = self.route.points[k]
+        if offset_m:  # the look-ahead point on the route (its points are sparse on straights), moved sideways
+            pts, cum = self.route.points, self.route.cum_s
+            ahead = min(s + look, float(cum[-1]))
+            j = min(max(int(np.searchsorted(cum, ahead)), 1), len(pts) - 1)
+            a, b = pts[j - 1], pts[j]
+            t = (ahead - cum[j - 1]) / max(cum[j] - cum[j - 1], 1e-9)
+            heading = math.atan2(b[1] - a[1], b[0] - a[0])
+            tx = a[0] + t * (b[0] - a[0]) + offset_m * math.sin(heading)
+            ty = a[1] + t * (b[1] - a[1]) - offset_m * math.cos(heading)
         yaw = math.radians(m.yaw_deg)
         alpha = math.atan2(ty - m.y, tx - m.x) - yaw
         alpha = math.atan2(math.sin(alpha), math.cos(alpha))
         delta = math.atan2(2.0 * WHEELBASE_M * math.sin(alpha), look)
         steer = float(np.clip(-delta / math.radians(MAX_STEER_DEG), -1.0, 1.0))
-        target = self._target_speed(s)
+        target = self._target_speed(s) if speed_kmh is None else min(speed_kmh, self._target_speed(s))
         if self._obstacle_gap(m) < STOP_GAP_M:
             target = 0.0
         err = target - speed
@@ -91,6 +119,17 @@ class Autopilot:
     def control(self, m: Measurements) -> tuple[Control, Control]:
         """(applied control with any injected steering noise, clean expert control)."""
         clean = self.expert(m)
+        if self.excursions is not None:
+            ex = self.excursions
+            if self._excursion_left_s <= 0.0 and self.rng.uniform() < ex.rate_per_s * FRAME_DT_S:
+                self._excursion_left_s = float(self.rng.uniform(*ex.duration_s))
+                low, high = ex.offsets_m[int(self.rng.integers(len(ex.offsets_m)))]
+                self._excursion_offset_m = float(self.rng.uniform(low, high))
+            if self._excursion_left_s > 0.0 and self._obstacle_gap(m) < 2.0 * STOP_GAP_M:
+                self._excursion_left_s = 0.0  # traffic ahead (oncoming, in the opposite lane): back to the lane
+            if self._excursion_left_s > 0.0:
+                self._excursion_left_s -= FRAME_DT_S
+                return self.expert(m, self._excursion_offset_m, ex.speed_kmh), clean
         if self.noise is None:
             return clean, clean
         if self._noise_left_s <= 0.0 and self.rng.uniform() < self.noise.rate_per_s * FRAME_DT_S:
@@ -107,6 +146,8 @@ class Autopilot:
         return clean, clean
 
     def done(self, m: Measurements) -> bool:
-        """True once the car is within 2 m of the route's goal."""
+        """True once the car is within 2 m of the route's goal (with excursions: or level with it, beside it)."""
         gx, gy = self.route.goal
+        if self.excursions is not None and self.route.project(m.x, m.y)[0] >= self.route.length_m - 2.0:
+            return True
         return math.hypot(m.x - gx, m.y - gy) < 2.0

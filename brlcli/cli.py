@@ -276,6 +276,9 @@ def collect(
     = False,
     noise: Annotated[bool, typer.Option(help="Inject steering noise (the expert recovers; off-centre views).")]
     = True,
+    excursions: Annotated[float, typer.Option(help="Lateral excursions per second: for 3-8 s the car drives on a "
+                                                   "sidewalk or in the opposite lane, views a failing agent sees "
+                                                   "(perception data; outside CIL). 0: none.")] = 0.0,
     depth: Annotated[bool, typer.Option(help="Record the depth image too.")] = True,
     width: Annotated[int, typer.Option(help="Camera width, px.")] = 200,
     height: Annotated[int, typer.Option(help="Camera height, px.")] = 88,
@@ -310,7 +313,7 @@ def collect(
     cfg = CollectConfig(town=town, weathers=wl, episodes=10 if episodes is None else episodes,
                         episode_frames=episode_frames, every=every,
                         seed=seed, storage=storage, vehicles=vehicles, pedestrians=pedestrians, noise=noise,
-                        depth=depth, camera=camera)
+                        excursions=excursions, depth=depth, camera=camera)
     check_output(cfg, out, resume)
     console = Console(stderr=True)
     total = cfg.episodes * cfg.episode_frames

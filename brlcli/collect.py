@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from brlcli.autopilot import Autopilot, NoiseConfig
+from brlcli.autopilot import Autopilot, ExcursionConfig, NoiseConfig
 from brlcli.bags import EpisodeBagWriter
 from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_json, provenance
@@ -35,6 +35,7 @@ class CollectConfig:
     vehicles: int = 0
     pedestrians: int = 0
     noise: bool = True
+    excursions: float = 0.0  # lateral excursions per second (sidewalks, opposite lane; outside CIL): 0 = none
     depth: bool = True
     camera: dict[str, Any] = field(default_factory=lambda: asdict(CameraConfig()))
 
@@ -47,11 +48,18 @@ class CollectConfig:
             raise BrlInputError("--weathers needs at least one weather")
         if self.vehicles < 0 or self.pedestrians < 0:
             raise BrlInputError("traffic counts must be >= 0")
+        if not 0.0 <= self.excursions <= 1.0:
+            raise BrlInputError(f"--excursions is a rate per second between 0 and 1, not {self.excursions}")
+        if self.excursions and self.vehicles:
+            raise BrlInputError("--excursions drive into the opposite lane, where oncoming traffic blocks the car; "
+                                "record excursions without --traffic")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
         d = asdict(self)
         d["weathers"] = list(self.weathers)
+        if not self.excursions:
+            del d["excursions"]  # recordings without them keep their brl 0.1 configuration (and --resume)
         return d
 
 
@@ -96,7 +104,8 @@ def collect(cfg: CollectConfig, out: Path, resume: bool = False,
             start = tuple(float(v) for v in town.spawn_poses[a])
             route = world.network.route(start, tuple(town.spawn_poses[b]))
             frame = world.reset(start, seed=int(rng.integers(2**31)))
-            pilot = Autopilot(world, route, rng, NoiseConfig() if cfg.noise else None)
+            excursions = ExcursionConfig(rate_per_s=cfg.excursions) if cfg.excursions else None
+            pilot = Autopilot(world, route, rng, NoiseConfig() if cfg.noise else None, excursions=excursions)
             meta = {"brl.town": town.name, "brl.town_version": town.version, "brl.weather": weather.id,
                     "brl.weather_name": weather.name, "brl.seed": cfg.seed, "brl.episode": k,
                     "brl.camera": cfg.camera, "brl.frame_dt_s": 0.1, "brl.route_length_m": round(route.length_m, 3)}

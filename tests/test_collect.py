@@ -136,8 +136,24 @@ def test_collect_cli_writes_bags_and_rejects_bad_input(tmp_path: Path) -> None:
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert len(find_bags([tmp_path / "ok"])) == 2
-    for bad in (["--weathers", "Snow"], ["--storage", "parquet"], ["--episodes", "0"], ["--town", "town5"]):
+    for bad in (["--weathers", "Snow"], ["--storage", "parquet"], ["--episodes", "0"], ["--town", "town5"],
+                ["--excursions", "0.1", "--traffic"], ["--excursions", "-1"]):
         r = subprocess.run([sys.executable, "-m", "brlcli.cli", "collect", "--out", str(tmp_path / "bad"), *bad],
                            capture_output=True, text=True, timeout=120)
         assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, (bad, r.stderr)
         assert not (tmp_path / "bad").exists()
+
+
+def test_excursions_take_the_car_off_its_lane_and_back(tmp_path: Path) -> None:
+    cfg = CollectConfig(town="town01", weathers=(1,), episodes=2, episode_frames=200, every=2, seed=4,
+                        excursions=0.2, depth=False)
+    collect(cfg, tmp_path / "exc")
+    frames = list(iter_frames([tmp_path / "exc"]))
+    off = np.array([max(f.measurements.intersection_offroad, f.measurements.intersection_otherlane) for f in frames])
+    assert (off > 0.5).mean() > 0.15 and (off < 0.05).mean() > 0.2  # beside the lane, and back in it
+    applied = np.array([f.control.steer for f in frames])
+    expert = np.array([f.expert_control.steer for f in frames])
+    assert np.abs(applied - expert).max() > 0.1  # the recorded expert control is the clean one
+    assert np.median([f.measurements.forward_speed_kmh for f in frames]) > 5.0  # not stuck
+    # a recording without excursions keeps brl 0.1's configuration
+    assert "excursions" not in CollectConfig().to_dict() and CollectConfig(excursions=0.1).to_dict()["excursions"]
