@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -15,9 +16,26 @@ app = typer.Typer(
     name="brl",
     help="Bayesian RL of vision-based vehicular control (Gharaee et al., ICPR 2020) on a CPU town simulator.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # help texts are plain text: [brackets] stay as written
+    context_settings={"help_option_names": ["-h", "--help"]},
 )
+
+FRESH_OUT = "a new runs/{command}/YYYYmmdd-HHMMSS"
+
+
+def _out(value: str | None, command: str) -> Path:
+    """The --out directory: as given (an empty string is refused), or a fresh one per invocation if not given."""
+    from brlcli.outdir import default_out, parse_out
+
+    return default_out(command) if value is None else parse_out(value)
+
+
+def _check_out(out: Path, kind: str, resume: bool = False, overwrite: bool = False) -> None:
+    from brlcli.outdir import check_out_dir
+
+    check_out_dir(out, kind, resume=resume, overwrite=overwrite)
 
 
 EXECUTOR_HELP = "Where tasks run: local (processes on this machine) or ray (a Ray cluster; pip install 'brl[ray]')."
@@ -51,7 +69,8 @@ def _root(
 @app.command()
 def preview(
     towns: Annotated[list[str] | None, typer.Argument(help="Towns to draw (default: town01 town02).")] = None,
-    out: Annotated[Path, typer.Option("--out", help="Output directory for the PNGs.")] = Path("out/preview"),
+    out: Annotated[str, typer.Option("--out", help="Output directory for the PNGs (rewritten in place).")]
+    = "out/preview",
     weathers: Annotated[str, typer.Option(help="Comma-separated weather ids or names.")] = "1,6,8,14",
     seed: Annotated[int, typer.Option(help="Seed for traffic and rain.")] = 0,
 ) -> None:
@@ -68,9 +87,11 @@ def preview(
     wl = [w.strip() for w in weathers.split(",") if w.strip()]
     for w in wl:
         get_weather(w)
+    out_dir = _out(out, "preview")
+    _check_out(out_dir, "preview", overwrite=True)
     console = Console(stderr=True)
     with console.status("rendering previews"):
-        paths = write_previews(names, out, wl, seed=seed)
+        paths = write_previews(names, out_dir, wl, seed=seed)
     for p in paths:
         typer.echo(str(p))
 
@@ -87,7 +108,8 @@ def train(
     = 1,
     executor: Annotated[str, typer.Option(help=EXECUTOR_HELP)] = "local",
     ray_address: Annotated[str | None, typer.Option(help=RAY_ADDRESS_HELP)] = None,
-    out: Annotated[Path, typer.Option("--out", help="Output directory (one seed_N/ per model).")] = Path("runs/train"),
+    out: Annotated[str | None, typer.Option("--out", help="Output directory (one seed_N/ per model; default: "
+                                                          f"{FRESH_OUT.format(command='train')}).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue interrupted runs in --out.")] = False,
     variant: Annotated[str, typer.Option(help="paper, or reference-code (the authors' code's choices).")] = "paper",
     target_speed_kmh: Annotated[float, typer.Option(help="Reward's target speed v_t, km/h.")] = 20.0,
@@ -107,6 +129,10 @@ def train(
 
     ex = _executor(executor, workers, ray_address)
     seed_list = parse_seeds(seeds) if seeds is not None else [seed]
+    if resume and out is None:
+        raise_input("--resume continues a run: give its --out")
+    if segnet is not None and input != "estimated":
+        raise_input("--segnet is only used with --input estimated")
     if input == "estimated" and segnet is None:
         from brlcli.models import default_segnet_path
 
@@ -120,7 +146,9 @@ def train(
     check_inputs(cfg)
     if input == "estimated":
         _segnet_notice(segnet)
-    check_run_dirs(cfg, seed_list, out, resume)
+    out_dir = _out(out, "train")
+    check_run_dirs(cfg, seed_list, out_dir, resume)
+    _check_out(out_dir, "train", resume, overwrite=True)  # a model set may grow by seeds; each seed is checked above
     console = Console(stderr=True)
     if executor == "ray":
         with console.status("connecting to Ray"):
@@ -136,15 +164,16 @@ def train(
             bar.update(tasks[p.seed], completed=p.step, reward=p.mean_reward, td=p.td_error, comps=p.components)
 
         try:
-            results = train_many(cfg, seed_list, out, workers=workers, resume=resume, progress=report, executor=ex)
+            results = train_many(cfg, seed_list, out_dir, workers=workers, resume=resume, progress=report,
+                                 executor=ex)
         except KeyboardInterrupt:
-            console.print(f"interrupted: finished episodes are checkpointed; continue with --resume --out {out}")
+            console.print(f"interrupted: finished episodes are checkpointed; continue with --resume --out {out_dir}")
             raise typer.Exit(130) from None
         finally:
             ex.close()
     for r in results:
         console.print(train_summary_line(r["summary"]), soft_wrap=True)
-    typer.echo(str(out))
+    typer.echo(str(out_dir))
 
 
 def train_summary_line(s: dict) -> str:
@@ -171,8 +200,9 @@ def sweep(
     workers: Annotated[int, typer.Option(help="Parallel processes (a local Ray instance's CPUs).")] = 1,
     executor: Annotated[str, typer.Option(help=EXECUTOR_HELP)] = "local",
     ray_address: Annotated[str | None, typer.Option(help=RAY_ADDRESS_HELP)] = None,
-    out: Annotated[Path, typer.Option("--out", help="Sweep directory (VARIANT/seed_N/ runs, sweep.md/csv/png/json).")]
-    = Path("runs/sweep"),
+    out: Annotated[str | None, typer.Option("--out", help="Sweep directory (VARIANT/seed_N/ runs, sweep.md/csv/png/"
+                                                          f"json; default: {FRESH_OUT.format(command='sweep')}).")]
+    = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue a sweep in --out: finished runs are skipped, "
                                                           "unfinished ones resume from their checkpoint.")] = False,
     report_only: Annotated[Path | None, typer.Option("--report-only", help="Rebuild the tables and plot of the sweep "
@@ -199,6 +229,10 @@ def sweep(
     ex = _executor(executor, workers, ray_address)
     only = [v.strip() for v in variants.split(",") if v.strip()] if variants is not None else None
     plan = plan_sweep(grid, parse_seeds(seeds), routes=routes, episodes=episodes, variants=only)
+    if resume and out is None:
+        raise_input("--resume continues a sweep: give its --out")
+    out = _out(out, "sweep")
+    _check_out(out, "sweep", resume)
     prepare_sweep(plan, out, resume, write=False)  # refuse a used --out before the progress bars start
     if executor == "ray":
         with console.status("connecting to Ray"):
@@ -270,7 +304,8 @@ def collect(
     episode_frames: Annotated[int, typer.Option(help="Recorded frames per episode.")] = 300,
     every: Annotated[int, typer.Option(help="Record every N-th simulated frame (10 fps / N).")] = 1,
     seed: Annotated[int, typer.Option(help="Seed of routes, noise and traffic.")] = 0,
-    out: Annotated[Path, typer.Option("--out", help="Output directory (episode_NNNNN/ bags).")] = Path("data/town01"),
+    out: Annotated[str | None, typer.Option("--out", help="Output directory (episode_NNNNN/ bags; default: "
+                                                          f"{FRESH_OUT.format(command='collect')}).")] = None,
     storage: Annotated[str, typer.Option(help="Bag storage: mcap (zstd chunks) or sqlite3.")] = "mcap",
     traffic: Annotated[bool, typer.Option("--traffic", help="CoRL2017 traffic (town01 20+50, town02 15+50).")]
     = False,
@@ -314,7 +349,11 @@ def collect(
                         episode_frames=episode_frames, every=every,
                         seed=seed, storage=storage, vehicles=vehicles, pedestrians=pedestrians, noise=noise,
                         excursions=excursions, depth=depth, camera=camera)
+    if resume and out is None:
+        raise_input("--resume continues a recording: give its --out")
+    out = _out(out, "collect")
     check_output(cfg, out, resume)
+    _check_out(out, "collect", resume)
     console = Console(stderr=True)
     total = cfg.episodes * cfg.episode_frames
     columns = (TextColumn("recording"), BarColumn(), MofNCompleteColumn(),
@@ -360,7 +399,8 @@ def bench(
     ray_address: Annotated[str | None, typer.Option(help=RAY_ADDRESS_HELP)] = None,
     shard: Annotated[str | None, typer.Option(help="Run slice K of N (K/N), e.g. one Docker job per shard.")] = None,
     seed: Annotated[int, typer.Option(help="Bench seed (traffic and weather noise per episode).")] = 0,
-    out: Annotated[Path, typer.Option("--out", help="Results directory.")] = Path("runs/bench"),
+    out: Annotated[str | None, typer.Option("--out", help="Results directory (default: "
+                                                          f"{FRESH_OUT.format(command='bench')}).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Skip episodes already in --out.")] = False,
 ) -> None:
     """Run the paper's test suite or the CoRL2017 benchmark for BRL models or a baseline (setting from the inputs)."""
@@ -393,6 +433,10 @@ def bench(
               "policies": [{"kind": p.kind, "name": p.name, **p.options} for p in pols], "deploy": deploy,
               "seed": seed, "selection": {"conditions": conditions, "tasks": tasks, "weathers": weathers,
                                           "episodes": episodes}, "shard": [k, n]}
+    if resume and out is None:
+        raise_input("--resume continues a bench: give its --out")
+    out = _out(out, "bench")
+    _check_out(out, "bench", resume)
     console = Console(stderr=True)
     if executor == "ray":
         with console.status("connecting to Ray"):
@@ -455,7 +499,7 @@ def report(
                                                                        "--curve-every, brl train-rl) for the sample-"
                                                                        "efficiency table and plot (repeatable).")]
     = None,
-    out: Annotated[Path, typer.Option("--out", help="Report directory.")] = Path("runs/report"),
+    out: Annotated[str, typer.Option("--out", help="Report directory (rebuilt in place).")] = "runs/report",
     formats: Annotated[str, typer.Option("--format", help="Comma-separated outputs: md, tex, csv, html.")]
     = "md,tex,csv,html",
 ) -> None:
@@ -466,6 +510,8 @@ def report(
     from brlcli.report import build_report
 
     console = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
+    out = _out(out, "report")
+    _check_out(out, "report", overwrite=True)
     with console.status("building the report"):
         rep = build_report(results or [], runs or [], out, formats, curve_dirs=curves or [])
     table = Table(title=f"brl report: {rep['episodes']} episodes -> {out}")
@@ -503,9 +549,9 @@ def train_seg(
                                              "or state (mean state L1).")] = "miou",
     seed: Annotated[int, typer.Option(help="Seed of initialisation, order and augmentation.")] = 0,
     workers: Annotated[int, typer.Option(help="CPU threads for torch.")] = 2,
-    out: Annotated[Path, typer.Option("--out", help="Output directory (segnet.pt = best epoch, calibrated; best.pt, "
-                                                    "last.pt, metrics.jsonl, calibration.json).")]
-    = Path("runs/segnet"),
+    out: Annotated[str | None, typer.Option("--out", help="Output directory (segnet.pt = best epoch, calibrated; "
+                                                          "best.pt, last.pt, metrics.jsonl, calibration.json; default: "
+                                                          f"{FRESH_OUT.format(command='train-seg')}).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue from the last finished epoch in --out.")] = False,
 ) -> None:
     """Train the EncNet-style segmentation net on frames recorded by brl collect, then calibrate it for the state."""
@@ -525,7 +571,11 @@ def train_seg(
                          net=SegNetConfig(fine=fine_channels).to_dict())
     train_bags, val_bags = resolve_data(data, val, val_fraction, seed)
     record = provenance({**cfg.to_dict(), "data": [str(b) for b in train_bags],
-                         "val": {k: [str(b) for b in v] for k, v in val_bags.items()}})
+                         "val": {k: [str(b) for b in v] for k, v in val_bags.items()}}, kind="train-seg")
+    if resume and out is None:
+        raise_input("--resume continues a run: give its --out")
+    out = _out(out, "train-seg")
+    _check_out(out, "train-seg", resume)
     cfg_path = out / "config.json"
     if cfg_path.exists():
         if not resume:
@@ -675,8 +725,9 @@ def train_il(
     batch_size: Annotated[int, typer.Option(help="Batch size (>= 4).")] = 64,
     seed: Annotated[int, typer.Option(help="Seed of initialisation, order, split and augmentation.")] = 0,
     workers: Annotated[int, typer.Option(help="CPU threads for torch.")] = 2,
-    out: Annotated[Path, typer.Option("--out", help="Run directory (il.pt = best, last.pt, metrics.jsonl).")]
-    = Path("runs/il"),
+    out: Annotated[str | None, typer.Option("--out", help="Run directory (il.pt = best, last.pt, metrics.jsonl; "
+                                                          f"default: {FRESH_OUT.format(command='train-il')}).")]
+    = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue from the last finished epoch in --out.")] = False,
 ) -> None:
     """Train the conditional imitation-learning baseline (CIL-style branched CNN) on autopilot demonstrations."""
@@ -690,8 +741,12 @@ def train_il(
     find_bags(list(data))  # fail early on missing bags
     if val:
         find_bags(list(val))
+    if resume and out is None:
+        raise_input("--resume continues a run: give its --out")
+    out = _out(out, "train-il")
     if (out / "config.json").exists() and not resume:
         raise_input(f"{out} already holds an imitation-learning run; pass --resume or choose another --out")
+    _check_out(out, "train-il", resume)
     console = Console(stderr=True)
 
     def report(r: dict) -> None:
@@ -723,8 +778,9 @@ def train_rl(
     = 5_000,
     eval_suite: Annotated[str, typer.Option(help="paper (the lane-keeping test suite) or none.")] = "paper",
     seed: Annotated[int, typer.Option(help="Seed of the network, exploration and routes.")] = 0,
-    out: Annotated[Path, typer.Option("--out", help="Run directory (drl.pt, learning_curve.csv, checkpoint/).")]
-    = Path("runs/dqn"),
+    out: Annotated[str | None, typer.Option("--out", help="Run directory (drl.pt, learning_curve.csv, checkpoint/; "
+                                                          f"default: {FRESH_OUT.format(command='train-rl')}).")]
+    = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue from the last finished chunk in --out.")] = False,
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --input estimated (default: shipped).")]
     = None,
@@ -738,6 +794,8 @@ def train_rl(
     from brlcli.sim.weather import get_weather
 
     load_town(town)
+    if segnet is not None and input != "estimated":
+        raise_input("--segnet is only used with --input estimated")
     if input == "estimated" and segnet is None:
         from brlcli.models import default_segnet_path
 
@@ -750,7 +808,11 @@ def train_rl(
 
         labeler_for(input, segnet, "--input")
         _segnet_notice(segnet)
+    if resume and out is None:
+        raise_input("--resume continues a run: give its --out")
+    out = _out(out, "train-rl")
     check_run_dir(cfg, out, resume)
+    _check_out(out, "train-rl", resume)
     console = Console(stderr=True)
     columns = (TextColumn(f"{algo}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("episodes {task.fields[eps]}  epsilon {task.fields[expl]:.2f}  paper success "
@@ -793,18 +855,42 @@ def raise_input(message: str) -> None:
     raise BrlInputError(message)
 
 
-def main() -> None:
-    """Entry point: run the app; bad input prints one line and exits with code 2."""
-    from brlcli.errors import BrlInputError
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})
+"""OSErrors that mean the output could not be written (disk full, permissions changed, read-only filesystem)."""
 
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point: run the app. Bad input (ours or a usage error) prints one line and exits with 2; an output
+    that cannot be written at run time prints one line and exits with 1 (the directory stays resumable)."""
+    from brlcli.errors import BrlInputError, BrlWriteError
+
+    args = sys.argv[1:] if argv is None else list(argv)
+    if not args:
+        args = ["--help"]  # brl alone: the help, exit 0
     try:
-        app()
+        code = typer.main.get_command(app).main(args, prog_name="brl", standalone_mode=False)
     except BrlInputError as exc:
-        typer.echo(f"brl: error: {exc}", err=True)
-        sys.exit(2)
-    except KeyboardInterrupt:
+        _fail(str(exc), 2)
+    except typer.TyperException as exc:  # click's usage errors: bad values, unknown options, missing options
+        _fail(exc.format_message(), getattr(exc, "exit_code", 2) or 2)
+    except BrlWriteError as exc:
+        _fail(str(exc), 1)
+    except OSError as exc:
+        if exc.errno not in WRITE_ERRNOS:
+            raise
+        where = f" {exc.filename}" if exc.filename else ""
+        _fail(f"cannot write{where}: {exc.strerror}", 1)
+    except (KeyboardInterrupt, typer.Abort):
         typer.echo("brl: interrupted", err=True)
         sys.exit(130)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+def _fail(message: str, code: int) -> None:
+    """Print `brl: error: MESSAGE` on one line and exit with `code`."""
+    line = " ".join(str(message).split())
+    typer.echo(f"brl: error: {line}", err=True)
+    sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -86,7 +86,7 @@ def collect(cfg: CollectConfig, out: Path, resume: bool = False,
     cfg_path = out / "collect.json"
     check_output(cfg, out, resume)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(cfg_path, provenance(cfg.to_dict()))
+    atomic_write_json(cfg_path, provenance(cfg.to_dict(), kind="collect"))
     weathers = [get_weather(w) for w in cfg.weathers]
     world = World(cfg.town, weather=weathers[0], seed=cfg.seed, vehicles=cfg.vehicles, pedestrians=cfg.pedestrians,
                   camera=CameraConfig(**cfg.camera))

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from brlcli import __version__
+from brlcli.errors import BrlWriteError
 
 
 def git_commit() -> str:
@@ -26,17 +27,23 @@ def git_commit() -> str:
     return out.stdout.strip() if out.returncode == 0 and out.stdout.strip() else "unknown"
 
 
-def provenance(config: dict[str, Any]) -> dict[str, Any]:
-    """The record stored beside every output: version, commit, python, and the resolved configuration."""
-    return {"brl_version": __version__, "git_commit": git_commit(), "python": platform.python_version(),
-            "config": config}
+def provenance(config: dict[str, Any], kind: str | None = None) -> dict[str, Any]:
+    """The record stored beside every output: version, commit, python, the resolved configuration and, for the
+    marker file of a command's output directory, the command's `kind` (see `brlcli.outdir`)."""
+    record = {"brl_version": __version__, "git_commit": git_commit(), "python": platform.python_version(),
+              "config": config}
+    return record if kind is None else {"kind": kind, **record}
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write `data` to `path` through a temporary file in the same directory and a rename."""
+    """Write `data` to `path` through a temporary file in the same directory and a rename; a failed write (disk
+    full, permissions) raises `BrlWriteError` and leaves the old file, if any, in place."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise BrlWriteError(f"cannot write {path}: {exc.strerror or exc}") from None
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -44,8 +51,10 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise BrlWriteError(f"cannot write {path}: {exc.strerror or exc}") from None
         raise
 
 

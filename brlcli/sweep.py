@@ -343,7 +343,7 @@ def prepare_sweep(plan: SweepPlan, out: Path, resume: bool, write: bool = True) 
                 raise BrlInputError(f"{cfg_path.parent} holds a run with another configuration than variant "
                                     f"'{variant}'; choose another --out")
     if write and not meta.exists():
-        atomic_write_json(meta, provenance(plan.config()))
+        atomic_write_json(meta, provenance(plan.config(), kind="sweep"))
 
 
 def _read_sweep(out: Path) -> dict[str, Any]:
@@ -565,7 +565,7 @@ def write_tables(out: Path) -> dict[str, Any]:
     atomic_write_bytes(out / "sweep.csv", _csv(rows).encode())
     atomic_write_bytes(out / "sweep.md", _md(doc, rows, notes).encode())
     atomic_write_bytes(out / "sweep.png", _png(rows))
-    record = provenance(doc["config"])
+    record = provenance(doc["config"], kind="sweep")
     record["rows"] = rows
     record["unfinished"] = list(notes)
     atomic_write_json(out / SWEEP_FILE, record)

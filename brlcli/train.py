@@ -238,7 +238,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     """Train one agent; returns the summary. Resumable from the last finished episode."""
     run_dir = Path(run_dir)
     config_path = run_dir / "config.json"
-    record = provenance(cfg.to_dict())
+    record = provenance(cfg.to_dict(), kind="train-run")
     if config_path.exists():
         if not resume:
             raise BrlInputError(f"{run_dir} already holds a training run; pass --resume or choose another --out")
@@ -360,11 +360,20 @@ def run_dir_for(out: Path, seed: int) -> Path:
 
 
 def check_run_dirs(cfg: TrainConfig, seeds: list[int], out: Path, resume: bool) -> None:
-    """Refuse, before anything starts, to overwrite a seed's run without `resume`."""
+    """Refuse, before anything is written, to overwrite a seed's run without `resume`, or to resume one made with
+    another configuration."""
     for s in seeds:
         d = run_dir_for(out, s)
-        if (d / "config.json").exists() and not resume:
+        if not (d / "config.json").exists():
+            continue
+        if not resume:
             raise BrlInputError(f"{d} already holds a training run; pass --resume or choose another --out")
+        try:
+            saved = TrainConfig.from_dict(json.loads((d / "config.json").read_text())["config"]).to_dict()
+        except (ValueError, KeyError, TypeError):
+            raise BrlInputError(f"{d / 'config.json'} is not a brl training configuration") from None
+        if saved != TrainConfig.from_dict({**cfg.to_dict(), "seed": s}).to_dict():
+            raise BrlInputError(f"{d} holds a run with another configuration; resume it with the same options")
 
 
 def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, resume: bool = False,
@@ -383,7 +392,8 @@ def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, 
     ex.connect()  # a bad executor fails before anything is written
     try:
         out.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(out / "run.json", provenance({**cfg.to_dict(), "seeds": seeds, "workers": workers}))
+        atomic_write_json(out / "run.json", provenance({**cfg.to_dict(), "seeds": seeds, "workers": workers},
+                                                      kind="train"))
         items = [(c.to_dict(), str(run_dir_for(out, c.seed).resolve()), resume) for c in cfgs]
         results: list[dict[str, Any]] = [{} for _ in items]
         for i, result in run_tasks(_train_task, items, executor=ex, on_report=progress):

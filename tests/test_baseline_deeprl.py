@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -57,7 +58,14 @@ class _Stop(Exception):
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("dqn") / "run"
-    train_deep_rl(DeepRLConfig(**TINY), out)
+    tmp = tmp_path_factory.mktemp("tmpdir")
+    old = tempfile.tempdir
+    tempfile.tempdir = str(tmp)  # where SB3's default logger would make its SB3-<date> directory
+    try:
+        train_deep_rl(DeepRLConfig(**TINY), out)
+    finally:
+        tempfile.tempdir = old
+    assert not list(tmp.iterdir()), "training left files in the temporary directory"
     return out
 
 

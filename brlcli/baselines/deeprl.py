@@ -200,12 +200,16 @@ def _make_env(cfg: DeepRLConfig) -> Any:
 
 def _build_dqn(cfg: DeepRLConfig, env: Any) -> Any:
     from stable_baselines3 import DQN
+    from stable_baselines3.common.logger import Logger
 
-    return DQN("MlpPolicy", env, learning_rate=cfg.learning_rate, buffer_size=cfg.buffer_size,
-               learning_starts=cfg.learning_starts, batch_size=cfg.batch_size, gamma=cfg.gamma,
-               train_freq=cfg.train_freq, target_update_interval=cfg.target_update_interval,
-               exploration_fraction=cfg.exploration_fraction, exploration_final_eps=cfg.exploration_final_eps,
-               policy_kwargs={"net_arch": list(cfg.net_arch)}, seed=cfg.seed, device="cpu", verbose=0)
+    model = DQN("MlpPolicy", env, learning_rate=cfg.learning_rate, buffer_size=cfg.buffer_size,
+                learning_starts=cfg.learning_starts, batch_size=cfg.batch_size, gamma=cfg.gamma,
+                train_freq=cfg.train_freq, target_update_interval=cfg.target_update_interval,
+                exploration_fraction=cfg.exploration_fraction, exploration_final_eps=cfg.exploration_final_eps,
+                policy_kwargs={"net_arch": list(cfg.net_arch)}, seed=cfg.seed, device="cpu", verbose=0)
+    # SB3's default logger makes an empty /tmp/SB3-<date> directory on every learn(); brl logs its own curve
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    return model
 
 
 _BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
@@ -292,7 +296,7 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
     if (run_dir / "summary.json").exists():
         return json.loads((run_dir / "summary.json").read_text())
     run_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(config_path, provenance(cfg.to_dict()))
+    atomic_write_json(config_path, provenance(cfg.to_dict(), kind="train-rl"))
     torch.set_num_threads(1)
     env = _make_env(cfg)
     model = _build_dqn(cfg, env)

@@ -364,7 +364,7 @@ def train_il(cfg: ILTrainConfig, data: list[str], out: Path, val: list[str] | No
         raise BrlInputError(f"{out} already holds an imitation-learning run; pass --resume or choose another --out")
     out.mkdir(parents=True, exist_ok=True)
     if not (resume and (out / "last.pt").exists()):
-        atomic_write_json(out / "config.json", provenance(config))
+        atomic_write_json(out / "config.json", provenance(config, kind="train-il"))
     torch.set_num_threads(cfg.threads)
     torch.use_deterministic_algorithms(True)
     torch.manual_seed(cfg.seed)

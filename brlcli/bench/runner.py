@@ -162,7 +162,7 @@ def prepare(out: Path, config: dict[str, Any], resume: bool) -> set[tuple[str, s
         raise BrlInputError(f"{out} is not a bench results directory (no bench.json)")
     out.mkdir(parents=True, exist_ok=True)
     if not meta.exists():
-        atomic_write_json(meta, provenance(config))
+        atomic_write_json(meta, provenance(config, kind="bench"))
     return {(r["policy"], r["id"]) for r in read_results(out)}
 
 
@@ -206,7 +206,8 @@ def suite_version(suite: str) -> int:
 
 
 def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, str]]:
-    """(policy name, model path) pairs from --model FILE or --models DIR|GLOB (a model set such as seed_0..8)."""
+    """(policy name, model path) pairs from --model FILE or --models DIR|GLOB (a model set such as seed_0..8); a file
+    given twice is listed once."""
     import glob as globmod
 
     found: list[tuple[str, str]] = []
@@ -239,6 +240,10 @@ def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, 
         if default is None:
             raise BrlInputError("give a policy: --model FILE or --models DIR")
         return find_models(None, [str(default)])
+    unique: dict[Path, tuple[str, str]] = {}
+    for name, path in found:  # a model named twice (--model X and a --models set holding X) runs once
+        unique.setdefault(Path(path).resolve(), (name, path))
+    found = list(unique.values())
     names = [n for n, _ in found]
     if len(set(names)) != len(names):
         raise BrlInputError("two models have the same name; give them distinct directories")

@@ -255,8 +255,8 @@ def build_report(results_dirs: Sequence[str | Path], run_dirs: Sequence[str | Pa
         embedded = {f"figures/{name}": data for name, data in images.items()}
         write("report.html", render.report_html(title, header, sections, notes, embedded).encode())
     record = provenance({"results": [str(p) for p in results_dirs], "runs": [str(p) for p in run_dirs],
-                         "curves": [str(p) for p in curve_dirs],
-                         "out": str(out), "formats": list(fmts)})
+                         "curves": [str(p) for p in curve_dirs], "out": str(out), "formats": list(fmts)},
+                        kind="report")
     record["inputs"] = [{"path": str(d.path), "suite": d.suite, "suite_version": d.suite_version,
                          "town_versions": d.town_versions, "episodes": d.episodes,
                          "torn_last_line": d.torn_last_line, "bench_brl_version": d.bench.get("brl_version"),

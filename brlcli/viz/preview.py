@@ -75,6 +75,6 @@ def write_previews(towns: list[str], out_dir: Path, weathers: list[str], seed: i
     written = []
     for t in towns:
         written += make_preview(t, out_dir, weathers, seed=seed)
-    atomic_write_json(out_dir / "run.json", provenance({"command": "preview", "towns": towns,
-                                                        "weathers": weathers, "seed": seed}))
+    config = {"command": "preview", "towns": towns, "weathers": weathers, "seed": seed}
+    atomic_write_json(out_dir / "run.json", provenance(config, kind="preview"))
     return written
