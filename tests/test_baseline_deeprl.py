@@ -65,7 +65,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
         train_deep_rl(DeepRLConfig(**TINY), out)
     finally:
         tempfile.tempdir = old
-    assert not list(tmp.iterdir()), "training left files in the temporary directory"
+    assert not list(tmp.glob("SB3-*")), "training left SB3 logger directories in the temporary directory"
     return out
 
 
