@@ -39,9 +39,13 @@ def main() -> None:
     for model in args.models:
         path = Path(model) / "model.npz" if Path(model).is_dir() else Path(model)
         pol = BRLPolicy(path.parent.name, str(path), deploy="gt")
-        l1, bias, agree, off = [], [], [], []
+        l1: list = []
+        bias: list = []
+        agree: list = []
+        off: list = []
 
-        def decide(obs: Observation, pol: BRLPolicy = pol) -> Control:
+        def decide(obs: Observation, pol: BRLPolicy = pol, l1: list = l1, bias: list = bias,
+                   agree: list = agree, off: list = off) -> Control:
             gt, est = state_vector(obs.labels), state_vector(seg.predict(obs.rgb))
             action_gt, action_est = int(pol.act(gt)), int(pol.act(est))
             l1.append(np.abs(gt - est).sum())
