@@ -23,6 +23,8 @@ app = typer.Typer(
 )
 
 FRESH_OUT = "a new runs/{command}/YYYYmmdd-HHMMSS"
+VARIANT_HELP = ("Method: paper (eqs. 1-11, Algorithm 1, Table I), reference-code (the authors' code's agent) "
+                "[default: paper].")
 
 
 def _out(value: str | None, command: str) -> Path:
@@ -98,10 +100,13 @@ def preview(
 
 @app.command()
 def train(
-    town: Annotated[str, typer.Option(help="Town to train in.")] = "town01",
-    weather: Annotated[str, typer.Option(help="Weather id or name (the paper trains in ClearNoon).")] = "1",
-    input: Annotated[str, typer.Option("--input", help="State source: gt (simulator labels) or estimated.")] = "gt",
-    steps: Annotated[int, typer.Option(help="Learning steps per model (paper: t_max = 4500).")] = 4500,
+    town: Annotated[str | None, typer.Option(help="Town to train in [default: town01].")] = None,
+    weather: Annotated[str | None, typer.Option(help="Weather id or name (the paper trains in 1, ClearNoon) "
+                                                     "[default: 1].")] = None,
+    input: Annotated[str | None, typer.Option("--input", help="State source: gt (simulator labels) or estimated "
+                                                              "[default: gt].")] = None,
+    steps: Annotated[int | None, typer.Option(help="Learning steps per model (paper: t_max = 4500) "
+                                                   "[default: 4500].")] = None,
     seed: Annotated[int, typer.Option(help="Seed of a single model.")] = 0,
     seeds: Annotated[str | None, typer.Option(help="Train a model set, e.g. 0-8 (overrides --seed).")] = None,
     workers: Annotated[int, typer.Option(help="Parallel processes for a model set (a local Ray instance's CPUs).")]
@@ -111,41 +116,63 @@ def train(
     out: Annotated[str | None, typer.Option("--out", help="Output directory (one seed_N/ per model; default: "
                                                           f"{FRESH_OUT.format(command='train')}).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue interrupted runs in --out.")] = False,
-    variant: Annotated[str, typer.Option(help="paper, or reference-code (the authors' code's choices).")] = "paper",
-    target_speed_kmh: Annotated[float, typer.Option(help="Reward's target speed v_t, km/h.")] = 20.0,
-    evaluate: Annotated[bool, typer.Option(help="Greedy evaluation on the town's validation routes at the end.")]
-    = True,
+    variant: Annotated[str | None, typer.Option(help=VARIANT_HELP)] = None,
+    target_speed_kmh: Annotated[float | None, typer.Option(help="Reward's target speed v_t, km/h [default: 20].")]
+    = None,
+    evaluate: Annotated[bool | None, typer.Option(help="Greedy evaluation on the town's validation routes at the end "
+                                                       "[default: evaluate].")] = None,
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --input estimated (default: shipped).")]
     = None,
-    curve_every: Annotated[int, typer.Option(help="Evaluate greedily on the paper suite every N steps and write "
-                                                  "learning_curve.csv (0: never).")] = 0,
+    curve_every: Annotated[int | None, typer.Option(help="Evaluate greedily on the paper suite every N steps and "
+                                                         "write learning_curve.csv (0: never) [default: 0].")] = None,
+    config: Annotated[str | None, typer.Option("--config", help="TOML file of training-config overrides (the schema "
+                                                                "of one brl sweep variant), under the options.")]
+    = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", help="KEY=VALUE override of any training-config key, "
+                                                                 "dotted for tables (params.gamma=0.8); repeatable; "
+                                                                 "applied last.")] = None,
+    print_config: Annotated[bool, typer.Option("--print-config", help="Print the resolved configuration (JSON) "
+                                                                      "and exit.")] = False,
 ) -> None:
     """Online Bayesian RL training of the driving agent (paper Sec. III-IV)."""
+    import json
+
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from brlcli.sim.weather import get_weather
-    from brlcli.train import TrainConfig, check_inputs, check_run_dirs, parse_seeds, train_many
+    from brlcli.train import DEFAULT_VARIANT, TrainConfig, check_inputs, check_run_dirs, parse_seeds, train_many
+    from brlcli.trainconfig import parse_sets, read_config_file, resolve_config
 
     ex = _executor(executor, workers, ray_address)
     seed_list = parse_seeds(seeds) if seeds is not None else [seed]
     if resume and out is None:
         raise_input("--resume continues a run: give its --out")
-    if segnet is not None and input != "estimated":
+    options = {"town": town, "weather": None if weather is None else get_weather(weather).id, "input": input,
+               "steps": steps, "variant": variant, "target_speed_kmh": target_speed_kmh, "evaluate": evaluate,
+               "segnet": segnet, "curve_every": curve_every}
+    layers = [read_config_file(config) if config is not None else {},
+              {k: v for k, v in options.items() if v is not None}, parse_sets(set_ or [])]
+    for layer, where in zip(layers, ("--config", "options", "--set"), strict=True):
+        if "seed" in layer:
+            raise_input(f"{where} cannot set seed: seeds come from --seed or --seeds")
+    cfg = resolve_config([*layers, {"seed": seed_list[0]}], default_variant=DEFAULT_VARIANT)
+    if cfg.segnet is not None and cfg.input != "estimated":
         raise_input("--segnet is only used with --input estimated")
-    if input == "estimated" and segnet is None:
+    if cfg.input == "estimated" and cfg.segnet is None:
         from brlcli.models import default_segnet_path
 
-        segnet = str(default_segnet_path())
-    cfg = TrainConfig(town=town, weather=get_weather(weather).id, input=input, steps=steps, seed=seed_list[0],
-                      variant=variant, target_speed_kmh=target_speed_kmh, evaluate=evaluate,
-                      segnet=segnet if input == "estimated" else None, curve_every=curve_every)
+        cfg = TrainConfig.from_dict({**cfg.to_dict(), "segnet": str(default_segnet_path())})
+    if print_config:
+        typer.echo(json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
+        return
     from brlcli.sim.town import load_town
 
-    load_town(town)
+    steps = cfg.steps
+    load_town(cfg.town)
     check_inputs(cfg)
-    if input == "estimated":
-        _segnet_notice(segnet)
+    if cfg.input == "estimated":
+        _segnet_notice(cfg.segnet)
     out_dir = _out(out, "train")
     check_run_dirs(cfg, seed_list, out_dir, resume)
     _check_out(out_dir, "train", resume, overwrite=True)  # a model set may grow by seeds; each seed is checked above
@@ -784,30 +811,50 @@ def train_rl(
     resume: Annotated[bool, typer.Option("--resume", help="Continue from the last finished chunk in --out.")] = False,
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --input estimated (default: shipped).")]
     = None,
+    config: Annotated[str | None, typer.Option("--config", help="TOML file of deep RL config overrides (keys of its "
+                                                                "config.json), under the options.")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", help="KEY=VALUE override of any deep RL config key, "
+                                                                 "e.g. the reward and episode options of brl train "
+                                                                 "(target_speed_kmh, road_view, offroad_end, "
+                                                                 "otherlane_end, start_offset_m, start_yaw_deg, "
+                                                                 "camera_pitch_deg); repeatable; applied last.")]
+    = None,
+    print_config: Annotated[bool, typer.Option("--print-config", help="Print the resolved configuration (JSON) "
+                                                                      "and exit.")] = False,
+    ctx: typer.Context = None,  # type: ignore[assignment]
 ) -> None:
     """Train the deep RL baseline (SB3 DQN) on the BRL agent's env, state, reward and actions."""
+    import json
+
+    from click.core import ParameterSource
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from brlcli.baselines.deeprl import DeepRLConfig, check_run_dir, train_deep_rl
     from brlcli.sim.town import load_town
     from brlcli.sim.weather import get_weather
+    from brlcli.trainconfig import resolve_plain_config
 
-    load_town(town)
-    if segnet is not None and input != "estimated":
+    options = {"algo": algo, "town": town, "weather": get_weather(weather).id, "input": input, "steps": steps,
+               "eval_every": eval_every, "eval_suite": eval_suite, "seed": seed, "segnet": segnet}
+    given = {k: v for k, v in options.items() if ctx.get_parameter_source(k) == ParameterSource.COMMANDLINE}
+    cfg = resolve_plain_config(DeepRLConfig, [config, given, set_ or []], what="deep RL")
+    if cfg.segnet is not None and cfg.input != "estimated":
         raise_input("--segnet is only used with --input estimated")
-    if input == "estimated" and segnet is None:
+    if cfg.input == "estimated" and cfg.segnet is None:
         from brlcli.models import default_segnet_path
 
-        segnet = str(default_segnet_path())
-    cfg = DeepRLConfig(algo=algo, town=town, weather=get_weather(weather).id, input=input, steps=steps,
-                       eval_every=eval_every, eval_suite=eval_suite, seed=seed,
-                       segnet=segnet if input == "estimated" else None)
-    if input == "estimated":
+        cfg = DeepRLConfig.from_dict({**cfg.to_dict(), "segnet": str(default_segnet_path())})
+    if print_config:
+        typer.echo(json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
+        return
+    load_town(cfg.town)
+    algo, steps = cfg.algo, cfg.steps
+    if cfg.input == "estimated":
         from brlcli.segnet import labeler_for
 
-        labeler_for(input, segnet, "--input")
-        _segnet_notice(segnet)
+        labeler_for(cfg.input, cfg.segnet, "--input")
+        _segnet_notice(cfg.segnet)
     if resume and out is None:
         raise_input("--resume continues a run: give its --out")
     out = _out(out, "train-rl")

@@ -32,7 +32,6 @@ import io
 import json
 import math
 import re
-import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,14 +43,13 @@ from brlcli import __version__
 from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, git_commit, provenance
 from brlcli.train import TrainConfig
+from brlcli.trainconfig import merge_layer, read_config_file, resolve_config
 
 SWEEP_FILE = "sweep.json"
 ROUTE_SETS = ("validation", "paper")
 """Route sets a sweep evaluates on: `brl bench` suites (validation: model selection; paper: the test routes)."""
 RESERVED_KEYS = {"seed": "seeds come from --seeds", "evaluate": "a sweep evaluates every model with the bench"}
 """Training config keys a variant may not set."""
-OPEN_TABLES = {"params"}
-"""Config tables whose keys are checked by their owner (params.*: BRLParams.from_dict), not against the defaults."""
 VARIANT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 SWEEP_COLUMNS = ("variant", "seeds", "success_mean", "success_std", "either_mean", "either_std", "score_mean",
                  "score_std", "best_seed", "best_score", "success_posterior_mean", "success_posterior_lo",
@@ -64,68 +62,17 @@ sweep.md and sweep.json."""
 # The grid
 
 
-def _merge(base: dict[str, Any], over: dict[str, Any], where: str, defaults: dict[str, Any] | None) -> dict[str, Any]:
-    """`over` merged onto `base`: tables merge key by key into tables, anything else replaces."""
-    out = dict(base)
-    for key, value in over.items():
-        name = f"{where}{key}"
-        if defaults is not None and key not in defaults:
-            hint = (" (a dot in a TOML table name nests tables: quote the variant name, [variants.\"a.b\"])"
-                    if where == "" and isinstance(value, dict) else "")
-            raise BrlInputError(f"unknown training config key '{name}'{hint}")
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            default = defaults.get(key) if defaults is not None else None
-            open_table = not (isinstance(default, dict) and default) or name in OPEN_TABLES
-            sub_defaults = None if open_table else default  # keys of an open table are checked by its owner
-            out[key] = _merge(out[key], value, f"{name}.", sub_defaults)
-        else:
-            out[key] = value
-    return out
-
-
-def _check_types(d: dict[str, Any], defaults: dict[str, Any], where: str = "") -> None:
-    """Each value has its default's type (int for int, a number for float, a list for a tuple, ...)."""
-    for key, value in d.items():
-        default, name = defaults.get(key), f"{where}{key}"
-        if default is None:
-            continue
-        if isinstance(default, bool):
-            ok = isinstance(value, bool)
-        elif isinstance(default, int):
-            ok = isinstance(value, int) and not isinstance(value, bool)
-        elif isinstance(default, float):
-            ok = isinstance(value, int | float) and not isinstance(value, bool)
-        elif isinstance(default, list | tuple):
-            ok = isinstance(value, list | tuple)
-        elif isinstance(default, dict):
-            ok = isinstance(value, dict)
-            if ok and default and name not in OPEN_TABLES:
-                _check_types(value, default, f"{name}.")
-        else:
-            ok = isinstance(value, type(default))
-        if not ok:
-            kinds = ((bool, "true or false"), (int, "an integer"), (float, "a number"), (str, "a string"),
-                     (list | tuple, "a list"), (dict, "a table"))
-            kind = next((k for t, k in kinds if isinstance(default, t)), type(default).__name__)
-            raise BrlInputError(f"training config key '{name}' must be {kind}, not {json.dumps(value, default=str)}")
-
-
 def resolve_variant(base: dict[str, Any], overrides: dict[str, Any]) -> TrainConfig:
-    """`base` then `overrides` merged onto the default training configuration, validated (one-line errors)."""
-    defaults = TrainConfig().to_dict()
+    """`base` then `overrides` merged onto the default training configuration, validated (one-line errors).
+
+    A grid that names no method variant (`variant = ...`) gets the paper's, whatever `brl train`'s default is, so
+    that a grid means the same configurations in every brl version.
+    """
     for layer in (base, overrides):
         for key, why in RESERVED_KEYS.items():
             if key in layer:
                 raise BrlInputError(f"training config key '{key}' cannot be set in a sweep ({why})")
-    merged = _merge(_merge(defaults, base, "", defaults), overrides, "", defaults)
-    _check_types(merged, defaults)
-    try:
-        cfg = TrainConfig.from_dict(merged)
-        cfg.agent_params()  # validates params.* (BRLParams.from_dict)
-    except BrlInputError:
-        raise
-    except (TypeError, ValueError) as exc:
-        raise BrlInputError(" ".join(str(exc).split())) from None
+    cfg = resolve_config([base, overrides], default_variant="paper")
     from brlcli.sim.town import load_town
 
     load_town(cfg.town)
@@ -134,22 +81,7 @@ def resolve_variant(base: dict[str, Any], overrides: dict[str, Any]) -> TrainCon
 
 def read_grid_file(path: Path) -> dict[str, Any]:
     """The decoded grid document (TOML, or JSON for a .json file)."""
-    path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise BrlInputError(f"sweep grid {path}: cannot read it ({exc.strerror or exc})") from None
-    try:
-        if path.suffix.lower() == ".json":
-            doc = json.loads(data.decode("utf-8"))
-        else:
-            doc = tomllib.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-        kind = "JSON" if path.suffix.lower() == ".json" else "TOML"
-        raise BrlInputError(f"sweep grid {path}: not valid {kind} ({' '.join(str(exc).split())})") from None
-    if not isinstance(doc, dict):
-        raise BrlInputError(f"sweep grid {path}: the document must be a table")
-    return doc
+    return read_config_file(path, what="sweep grid")
 
 
 def load_grid(path: Path, only: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
@@ -165,7 +97,7 @@ def load_grid(path: Path, only: Sequence[str] | None = None) -> dict[str, dict[s
     if not isinstance(variants, dict) or not variants:
         raise BrlInputError(f"sweep grid {path}: no variants (add tables [variants.NAME])")
     try:
-        _merge(TrainConfig().to_dict(), base, "", TrainConfig().to_dict())
+        merge_layer(TrainConfig().to_dict(), base, "", TrainConfig().to_dict())
     except BrlInputError as exc:
         raise BrlInputError(f"sweep grid {path}: [base]: {exc}") from None
     names = list(variants)

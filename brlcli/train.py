@@ -39,6 +39,18 @@ LOG_COLUMNS = (
 CHECKPOINT_VERSION = 1
 
 
+VARIANT_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {},
+    "reference-code": {},
+}
+"""Named methods: the overrides of `TrainConfig()` each one stands for (a `--set` or `--config` goes on top).
+`paper`: eqs. 1-11, Algorithm 1 and Table I as written, with the lane-keeping study's open choices (the TrainConfig
+defaults). `reference-code`: the same set-up with the agent of the authors' code (`BRLParams.reference_code()`:
+gamma 0.8, rho_rate 3e-5, no alpha decay, Q normalised over actions, m_t by likelihood in the TD error)."""
+DEFAULT_VARIANT = "paper"
+"""The variant `brl train` uses when none is named."""
+
+
 DEFAULT_AGENT_OVERRIDES: dict[str, Any] = {"init_scatter": 1e-3}
 """Agent parameters a training run sets beyond `BRLParams()` (none of them is in the paper's Table I): the NIW
 prior scatter S0 = 1e-3 I, on the scale of the 30-number state, instead of the reference code's 0.1 I
@@ -81,8 +93,8 @@ class TrainConfig:
                                            self.otherlane_end)
         except ValueError as exc:
             raise BrlInputError(f"bad training configuration: {exc}") from None
-        if self.variant not in ("paper", "reference-code"):
-            raise BrlInputError(f"unknown variant '{self.variant}'; choose paper or reference-code")
+        if self.variant not in VARIANT_PRESETS:
+            raise BrlInputError(f"unknown variant '{self.variant}'; choose one of {', '.join(VARIANT_PRESETS)}")
         get_weather(self.weather)
 
     def to_dict(self) -> dict[str, Any]:

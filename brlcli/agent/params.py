@@ -118,5 +118,6 @@ class BRLParams:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
-            raise ValueError(f"unknown BRLParams key(s): {', '.join(map(str, unknown))}")
+            raise ValueError(f"unknown BRLParams key(s) (params.*): {', '.join(map(str, unknown))}; known keys: "
+                             f"{', '.join(sorted(known))}")
         return cls(**data)

@@ -34,6 +34,7 @@ from brlcli.policy import StatePolicy, setting_name
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.reward import RewardParams
 from brlcli.segnet import check_input_source, labeler_for
+from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import ACTIONS, DrivingEnv
 from brlcli.torchfiles import load_torch_doc, save_torch_doc
 
@@ -69,6 +70,10 @@ class DeepRLConfig:
     segnet: str | None = None
     road_view: str = "road+line"  # the road-view reward's share, as `brl train`'s default (docs/lane-keeping-study.md)
     offroad_end: float | None = 0.5  # a training episode ends beyond this off-road share, as `brl train`'s default
+    otherlane_end: float | None = None  # ... and beyond this share in the opposite lane (brl train's option)
+    start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m (brl train's option)
+    start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
+    camera_pitch_deg: float = -15.0  # pitch of the state camera (deg), as brl train's
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -85,13 +90,19 @@ class DeepRLConfig:
         get_weather(self.weather)
         try:
             self.reward_params()
-            DrivingEnv.check_episode_rules(self.offroad_end, 0.0, 0.0)
+            DrivingEnv.check_episode_rules(self.offroad_end, self.start_offset_m, self.start_yaw_deg,
+                                           self.otherlane_end)
+            self.camera()
         except ValueError as exc:
             raise BrlInputError(f"bad deep RL configuration: {exc}") from None
 
     def reward_params(self) -> RewardParams:
         """The reward's parameters for this run (as `brl train`'s)."""
         return RewardParams(target_speed_kmh=self.target_speed_kmh, road_view=self.road_view)
+
+    def camera(self) -> CameraConfig:
+        """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""
+        return CameraConfig(pitch_deg=self.camera_pitch_deg)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
@@ -173,7 +184,9 @@ class DeepRLPolicy(StatePolicy):
             model = str(models_dir() / "dqn" / "drl.pt")
         net, meta = load_model(model)
         setting = f"{meta['algo'].upper()}-{setting_name(meta['train'].get('input', 'gt'), deploy)}"
-        super().__init__(name, setting, greedy_action_fn(net), labeler_for(deploy, segnet))
+        pitch = float(meta["train"].get("camera_pitch_deg", CameraConfig().pitch_deg))
+        super().__init__(name, setting, greedy_action_fn(net), labeler_for(deploy, segnet),
+                         CameraConfig(pitch_deg=pitch))
 
 
 @dataclass
@@ -195,7 +208,9 @@ def _chunk_seed(seed: int, chunk: int) -> int:
 def _make_env(cfg: DeepRLConfig) -> Any:
     return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training",
                       reward=cfg.reward_params(),
-                      labeler=labeler_for(cfg.input, cfg.segnet, "--input"), offroad_end=cfg.offroad_end)
+                      labeler=labeler_for(cfg.input, cfg.segnet, "--input"), camera=cfg.camera(),
+                      offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
+                      start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end)
 
 
 def _build_dqn(cfg: DeepRLConfig, env: Any) -> Any:
@@ -331,7 +346,7 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
             save_model(run_dir / "drl.pt", q_net, cfg, int(model.num_timesteps))
             if evaluator is not None:
                 t_eval = time.perf_counter()
-                pol = StatePolicy("dqn", setting, greedy_action_fn(q_net), env.labeler)
+                pol = StatePolicy("dqn", setting, greedy_action_fn(q_net), env.labeler, cfg.camera())
                 curve.append({"env_steps": int(model.num_timesteps), **evaluator.evaluate(pol)})
                 write_curve(run_dir / CURVE_FILE, curve)
                 eval_s += time.perf_counter() - t_eval

@@ -1,0 +1,119 @@
+"""Training configurations from variants, --config files and --set overrides (brl train, brl train-rl)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from brlcli.baselines.deeprl import DeepRLConfig
+from brlcli.errors import BrlInputError
+from brlcli.train import DEFAULT_VARIANT, VARIANT_PRESETS, TrainConfig
+from brlcli.trainconfig import parse_sets, parse_value, resolve_config, resolve_plain_config
+
+
+def _brl(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "brlcli.cli", *args], capture_output=True, text=True, timeout=300,
+                          cwd=cwd)
+
+
+def test_parse_value_reads_toml_values_and_falls_back_to_text() -> None:
+    assert parse_value("0.5") == 0.5 and parse_value("12") == 12 and parse_value("true") is True
+    assert parse_value("visits") == "visits" and parse_value('"a b"') == "a b"
+    assert parse_value('["straight"]') == ["straight"]
+
+
+def test_parse_sets_nests_dotted_keys() -> None:
+    layer = parse_sets(["params.step_size=visits", "params.gamma=0.8", "offroad_end=0.3"])
+    assert layer == {"params": {"step_size": "visits", "gamma": 0.8}, "offroad_end": 0.3}
+    for bad in ("offroad_end", "=1", "params..gamma=1"):
+        with pytest.raises(BrlInputError, match="KEY=VALUE"):
+            parse_sets([bad])
+
+
+def test_resolve_config_layers_in_order_and_records_the_variant() -> None:
+    cfg = resolve_config([{"offroad_end": 0.3}, {"params": {"gamma": 0.8}}, {"offroad_end": 0.4}])
+    assert cfg.offroad_end == 0.4 and cfg.variant == "paper"
+    assert cfg.params == {**TrainConfig().params, "gamma": 0.8}  # a table merges key by key
+    assert cfg.agent_params().gamma == 0.8
+    ref = resolve_config([{"variant": "reference-code"}])
+    assert ref.variant == "reference-code" and ref.agent_params().variant == "reference-code"
+
+
+@pytest.mark.parametrize("layer, message", [
+    ({"variant": "nope"}, "unknown variant \"nope\"; choose one of paper, reference-code"),
+    ({"offroad_endd": 1}, "unknown training config key 'offroad_endd'; known keys: "),
+    ({"steps": "many"}, "training config key 'steps' must be an integer"),
+    ({"params": {"gama": 0.8}}, "unknown BRLParams key(s) (params.*): gama; known keys: T_l"),
+    ({"params": {"gamma": 2.0}}, "BRLParams.gamma must lie in [0, 1]"),
+    ({"offroad_end": 1.5}, "bad training configuration"),
+])
+def test_resolve_config_refuses_bad_layers_with_one_line(layer: dict, message: str) -> None:
+    with pytest.raises(BrlInputError) as exc:
+        resolve_config([layer])
+    assert message in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_every_variant_preset_resolves() -> None:
+    assert DEFAULT_VARIANT in VARIANT_PRESETS
+    for name in VARIANT_PRESETS:
+        assert resolve_config([{"variant": name}]).variant == name
+
+
+def test_resolve_plain_config_for_train_rl() -> None:
+    cfg = resolve_plain_config(DeepRLConfig, [{"steps": 40}, ["otherlane_end=0.4", "camera_pitch_deg=-30"]],
+                               what="deep RL")
+    assert (cfg.steps, cfg.otherlane_end, cfg.camera().pitch_deg) == (40, 0.4, -30.0)
+    with pytest.raises(BrlInputError, match="unknown deep RL config key 'params'"):
+        resolve_plain_config(DeepRLConfig, [["params.gamma=0.8"]], what="deep RL")
+
+
+def test_cli_print_config_shows_the_resolved_configuration(tmp_path: Path) -> None:
+    toml = tmp_path / "cfg.toml"
+    toml.write_text('offroad_end = 0.3\nparams = { step_size = "visits" }\n')
+    r = _brl("train", "--config", str(toml), "--steps", "30", "--set", "params.gamma=0.8", "--print-config")
+    assert r.returncode == 0, r.stderr
+    cfg = json.loads(r.stdout)
+    assert cfg["offroad_end"] == 0.3 and cfg["steps"] == 30 and cfg["variant"] == DEFAULT_VARIANT
+    assert cfg["params"]["step_size"] == "visits" and cfg["params"]["gamma"] == 0.8
+    r = _brl("train", "--set", "steps=7", "--steps", "30", "--print-config")  # --set is applied last
+    assert json.loads(r.stdout)["steps"] == 7
+    r = _brl("train-rl", "--set", "offroad_end=0.25", "--print-config")
+    assert r.returncode == 0 and json.loads(r.stdout)["offroad_end"] == 0.25
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--variant", "nope"], "unknown variant"),
+    (["--set", "nokey=1"], "unknown training config key 'nokey'"),
+    (["--set", "steps=lots"], "'steps' must be an integer"),
+    (["--set", "seed=3"], "--set cannot set seed"),
+    (["--set", "params"], "must be KEY=VALUE"),
+    (["--config", "missing.toml"], "--config missing.toml: cannot read it"),
+])
+def test_cli_bad_training_options_fail_with_one_line(tmp_path: Path, args: list[str], message: str) -> None:
+    r = _brl("train", *args, "--out", str(tmp_path / "run"), cwd=tmp_path)
+    assert r.returncode == 2 and message in r.stderr
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_cli_malformed_config_file(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("offroad_end = = 1\n")
+    r = _brl("train", "--config", str(bad), "--out", str(tmp_path / "run"))
+    assert r.returncode == 2 and "not valid TOML" in r.stderr and not (tmp_path / "run").exists()
+
+
+def test_cli_set_with_resume_of_another_configuration_is_refused(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    r = _brl("train", "--steps", "12", "--no-evaluate", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    saved = json.loads((out / "seed_0" / "config.json").read_text())["config"]
+    assert saved["variant"] == DEFAULT_VARIANT
+    r = _brl("train", "--steps", "12", "--no-evaluate", "--set", "offroad_end=0.3", "--resume", "--out", str(out))
+    assert r.returncode == 2 and "another configuration" in r.stderr
+    r = _brl("train", "--steps", "12", "--no-evaluate", "--resume", "--out", str(out))
+    assert r.returncode == 0, r.stderr
