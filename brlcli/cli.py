@@ -188,7 +188,8 @@ def train(
         tasks = {s: bar.add_task("", total=steps, seed=s, reward=0.0, td=0.0, comps=1) for s in seed_list}
 
         def report(p) -> None:  # p: brlcli.train.Progress
-            bar.update(tasks[p.seed], completed=p.step, reward=p.mean_reward, td=p.td_error, comps=p.components)
+            bar.update(tasks[p.seed], completed=p.step, total=p.steps, reward=p.mean_reward, td=p.td_error,
+                       comps=p.components)
 
         try:
             results = train_many(cfg, seed_list, out_dir, workers=workers, resume=resume, progress=report,

@@ -34,9 +34,14 @@ from brlcli.sim.weather import get_weather
 LOG_COLUMNS = (
     "step", "episode", "decision", "action", "reward", "r_collision", "r_offroad", "r_otherlane", "r_speed",
     "r_road_view", "td_error", "component", "created", "weight", "weight_case", "components", "alpha", "tau",
-    "rho", "forward_speed_kmh", "intersection_offroad", "intersection_otherlane", "x", "y",
+    "rho", "forward_speed_kmh", "intersection_offroad", "intersection_otherlane", "x", "y", "attempt",
 )
 CHECKPOINT_VERSION = 1
+RESTART_CHECKS = (1 / 3, 2 / 3)
+"""Fractions of an attempt's learning steps after which the trap test of `TrainConfig.restart_below` runs (at the
+end of the episode that crosses them): steps 1,500 and 3,000 of 4,500."""
+RESTART_WINDOW = 1 / 6
+"""Fraction of the learning steps the trap test looks back over (750 of 4,500)."""
 
 
 VARIANT_PRESETS: dict[str, dict[str, Any]] = {
@@ -79,6 +84,9 @@ class TrainConfig:
     start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m ...
     start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
     otherlane_end: float | None = None  # end a training episode when the share in the opposite lane exceeds it
+    restart_below: float | None = None  # outside the paper: restart learning (a fresh agent) when the mean reward
+    # per step over the last RESTART_WINDOW of steps is below this at RESTART_CHECKS of an attempt (None: never)
+    max_restarts: int = 2  # at most this many restarts; the last attempt always runs to the end
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
@@ -86,6 +94,8 @@ class TrainConfig:
             raise BrlInputError("--steps must be at least 1")
         if self.curve_every < 0:
             raise BrlInputError("--curve-every must be >= 0")
+        if self.max_restarts < 0:
+            raise BrlInputError("max_restarts must be >= 0")
         try:
             self.reward_params()
             self.camera()
@@ -166,11 +176,12 @@ def _make_env(cfg: TrainConfig) -> DrivingEnv:
 
 
 def _log_row(step: int, episode: int, decision: int, action: int, reward: float, terms: dict, learn: Any,
-             agent: BayesianAgent, m: dict) -> list:
+             agent: BayesianAgent, m: dict, attempt: int) -> list:
     return [step, episode, decision, ACTION_NAMES[action], reward, terms["collision"], terms["offroad"],
             terms["otherlane"], terms["speed"], terms["road_view"], learn.td_error, learn.component,
             int(learn.created), learn.weight, learn.weight_case, agent.n_components, agent.alpha, agent.tau,
-            agent.rho, m["forward_speed_kmh"], m["intersection_offroad"], m["intersection_otherlane"], m["x"], m["y"]]
+            agent.rho, m["forward_speed_kmh"], m["intersection_offroad"], m["intersection_otherlane"], m["x"], m["y"],
+            attempt]
 
 
 def _format(v: Any) -> str:
@@ -245,6 +256,17 @@ def _truncate_log(path: Path, rows: int) -> None:
     atomic_write_bytes(path, b"".join(line + b"\n" for line in lines[: rows + 1]))
 
 
+def _trapped(cfg: TrainConfig, step: int, stats: dict) -> bool:
+    """The trap test at an episode's end: True when this attempt must restart (and records a passed check)."""
+    if cfg.restart_below is None or stats["attempt"] >= cfg.max_restarts:
+        return False
+    done = stats["checks_done"]
+    if done >= len(RESTART_CHECKS) or step - stats["attempt_start"] < RESTART_CHECKS[done] * cfg.steps:
+        return False
+    stats["checks_done"] = done + 1
+    return bool(np.mean(stats["window"]) < cfg.restart_below)
+
+
 def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
               progress: Callable[[Progress], None] | None = None) -> dict[str, Any]:
     """Train one agent; returns the summary. Resumable from the last finished episode."""
@@ -275,18 +297,23 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         agent, rng, state = loaded
         step, episode, stats = state["step"], state["episode"], state["stats"]
         _truncate_log(log_path, state["log_rows"])
+    stats.setdefault("attempt", 0)  # restarts (TrainConfig.restart_below): attempt number, its first global step,
+    stats.setdefault("attempt_start", 0)  # the checks it passed, the rewards of the trap test's window
+    stats.setdefault("checks_done", 0)
+    stats.setdefault("window", [])
+    stats.setdefault("restarts", [])
     curve = _Curve(run_dir, cfg, env, step) if cfg.curve_every else None
     t0 = time.perf_counter() - stats["wall_s"]
     recent: list[float] = []
     td = 0.0
     with open(log_path, "a", newline="") as fh:
-        while step < cfg.steps:
+        while step - stats["attempt_start"] < cfg.steps:
             obs, _ = env.reset(seed=_episode_seed(cfg.seed, episode))
             state = obs.astype(np.float64)
             buffer = io.StringIO()
             rows = csv.writer(buffer, lineterminator="\n")
             decision, reached = 0, False
-            while step < cfg.steps:
+            while step - stats["attempt_start"] < cfg.steps:
                 action = agent.act(state, rng)
                 obs, reward, terminated, truncated, info = env.step(action)
                 next_state = obs.astype(np.float64)
@@ -296,13 +323,18 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                     td = learn.td_error
                     rows.writerow([_format(v) for v in _log_row(step, episode, decision, action, reward,
                                                                 info["reward_terms"], learn, agent,
-                                                                info["measurements"])])
+                                                                info["measurements"], stats["attempt"])])
                     stats["reward_sum"] += reward
+                    if cfg.restart_below is not None:
+                        stats["window"].append(reward)
+                        if len(stats["window"]) > max(1, round(RESTART_WINDOW * cfg.steps)):
+                            del stats["window"][0]
                     recent = [*recent, reward][-100:]
                     if curve is not None and step % cfg.curve_every == 0:
                         curve.evaluate(agent, step)
                     if progress and step % 25 == 0:
-                        progress(Progress(cfg.seed, step, cfg.steps, episode, float(np.mean(recent)), td,
+                        progress(Progress(cfg.seed, step, stats["attempt_start"] + cfg.steps, episode,
+                                          float(np.mean(recent)), td,
                                           agent.n_components))
                 decision += 1
                 state = next_state
@@ -314,6 +346,11 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
             episode += 1
             stats["episodes"] = episode
             stats["goals"] += int(reached)
+            if _trapped(cfg, step, stats):
+                stats["restarts"].append({"step": step, "attempt_steps": step - stats["attempt_start"],
+                                          "mean_reward": float(np.mean(stats["window"]))})
+                stats.update(attempt=stats["attempt"] + 1, attempt_start=step, checks_done=0, window=[])
+                agent = BayesianAgent(state_dim=30, n_actions=4, params=cfg.agent_params())
             stats["wall_s"] = time.perf_counter() - t0
             ckpt.save(agent, rng, step, episode, step, stats)
     wall = time.perf_counter() - t0 - (curve.eval_s if curve is not None else 0.0)  # learning time only
@@ -323,6 +360,9 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         "mean_reward": stats["reward_sum"] / max(step, 1), "components": agent.n_components,
         "alpha": agent.alpha, "tau": agent.tau, "rho": agent.rho, "wall_s": wall, "steps_per_s": step / wall,
     }
+    if cfg.restart_below is not None:
+        summary.update(attempts=stats["attempt"] + 1, restarts=stats["restarts"],
+                       final_attempt_steps=step - stats["attempt_start"])
     env.close()
     if curve is not None:
         curve.close()
@@ -334,7 +374,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         summary["eval"] = ev
     atomic_write_json(run_dir / "summary.json", {**provenance(cfg.to_dict()), "summary": summary})
     if progress:
-        progress(Progress(cfg.seed, step, cfg.steps, episode, float(np.mean(recent)) if recent else 0.0, td,
+        progress(Progress(cfg.seed, step, step, episode, float(np.mean(recent)) if recent else 0.0, td,
                           agent.n_components, done=True))
     return {**provenance(cfg.to_dict()), "summary": summary}
 

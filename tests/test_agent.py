@@ -649,3 +649,30 @@ def test_learn_rejects_bad_inputs() -> None:
     with pytest.raises(ValueError, match="reward"):
         agent.learn(s, 0, float("inf"), s)
     assert agent.steps == 0
+
+
+def test_mixture_td_error_uses_the_mixture_values_and_updates_every_component() -> None:
+    """td_error = 'mixture': delta on Q(s, a) = sum_m phi_m(s) Q[a, m]; Q[a_t, m] moves by alpha phi_m delta."""
+    from brlcli.agent.bayes import log_likelihoods
+
+    rng = np.random.default_rng(3)
+    params = BRLParams(td_error="mixture", init_scatter=1e-2)
+    agent = BayesianAgent(state_dim=4, n_actions=3, params=params)
+    for _ in range(60):  # grow a few components
+        s = rng.dirichlet(np.ones(4))
+        agent.learn(s, int(rng.integers(3)), float(rng.normal(-20, 10)), rng.dirichlet(np.ones(4)))
+    assert agent.n_components > 1
+    s, s_next, a_t = rng.dirichlet(np.ones(4)), rng.dirichlet(np.ones(4)), 1
+    phi = np.exp(log_likelihoods(agent, s) - log_likelihoods(agent, s).max())
+    phi /= phi.sum()
+    phi_next = np.exp(log_likelihoods(agent, s_next) - log_likelihoods(agent, s_next).max())
+    phi_next /= phi_next.sum()
+    q = agent.Q.copy()
+    r = q[a_t] @ phi - params.gamma * (q @ phi_next).max() + 2.5  # a TD error of 2.5: an update, no creation
+    expected_td = r + params.gamma * (q @ phi_next).max() - q[a_t] @ phi
+    n_before, alpha = agent.n_components, agent.alpha
+    step = agent.learn(s, a_t, r, s_next)
+    assert step.td_error == pytest.approx(2.5, rel=1e-9) and not step.created
+    assert agent.n_components == n_before and phi.max() < 1.0 - 1e-6  # the update reaches several components
+    np.testing.assert_allclose(agent.Q[a_t], q[a_t] + alpha * phi * expected_td, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(np.delete(agent.Q, a_t, axis=0), np.delete(q, a_t, axis=0))

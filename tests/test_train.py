@@ -142,3 +142,32 @@ def test_train_summary_line_reports_either_and_score_beside_success() -> None:
     line = train_summary_line(s)
     assert "lane-keeping success 100%  Either 62.7%  Score 0.79 (town01 validation routes)" in line
     assert "Either" not in train_summary_line({**s, "eval": None})
+
+
+def test_restarts_on_a_trap_and_resumes_bit_identical(tmp_path: Path) -> None:
+    """restart_below above every reward restarts at each check until max_restarts; a cut run resumes exactly."""
+    cfg = TrainConfig(steps=90, seed=2, evaluate=False, restart_below=1.0, max_restarts=2)
+    summary = train_run(cfg, tmp_path / "full")["summary"]
+    assert summary["attempts"] == 3 and len(summary["restarts"]) == 2
+    assert all(r["attempt_steps"] >= 30 for r in summary["restarts"])  # first check at a third of the steps
+    assert summary["final_attempt_steps"] == 90
+    assert summary["steps"] == 90 + sum(r["attempt_steps"] for r in summary["restarts"])
+    rows = (tmp_path / "full" / "log.csv").read_text().splitlines()[1:]
+    attempts = [int(r.rsplit(",", 1)[1]) for r in rows]
+    assert attempts == sorted(attempts) and set(attempts) == {0, 1, 2} and attempts.count(2) == 90
+    agent = BayesianAgent.load(tmp_path / "full" / "model.npz")
+    assert agent.steps == 90  # the model is the last attempt's, trained from scratch
+
+    class Stop(Exception):
+        pass
+
+    def kill(p) -> None:
+        if p.step >= summary["restarts"][0]["step"] + 20:
+            raise Stop
+
+    with pytest.raises(Stop):
+        train_run(cfg, tmp_path / "cut", progress=kill)
+    train_run(cfg, tmp_path / "cut", resume=True)
+    assert _files(tmp_path / "cut") == _files(tmp_path / "full")
+    never = TrainConfig(steps=90, seed=2, evaluate=False, restart_below=-1e9)
+    assert train_run(never, tmp_path / "never")["summary"]["attempts"] == 1

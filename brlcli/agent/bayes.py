@@ -400,13 +400,13 @@ class BayesianAgent:
         # steps 1-3 and the weight of eq. 9: a', m', m_t, d_t, the TD error (eq. 5) and w for m_t
         td_error, m_t, d_t, weight, case = _kernels.decide(
             self._cache_ll, self._cache_dist, row_t, row_next, self._q, self._n, a_t, reward, p.gamma, p.T_l,
-            p.T_u, p.variant != "paper")
+            p.T_u, p.variant != "paper", p.td_error == "mixture")
         m_t = int(m_t)
         weight = float(weight)
         s_t = self._cache_states[row_t].copy()
 
         if d_t < self._rho or td_error > p.T_l:
-            self._update(m_t, a_t, s_t, td_error, weight)
+            self._update(m_t, a_t, s_t, td_error, weight, row_t)
             step = LearnStep(td_error, m_t, False, weight, WEIGHT_CASES[case], 0)
         elif self._n < p.max_components:
             m_new = self._add_component(s_t)
@@ -417,7 +417,7 @@ class BayesianAgent:
                 self._q[a_t, m_new] = p.new_q_taken
             step = LearnStep(td_error, m_new, True, math.nan, "created", 0)
         elif p.at_capacity == "merge":
-            self._update(m_t, a_t, s_t, td_error, weight)
+            self._update(m_t, a_t, s_t, td_error, weight, row_t)
             step = LearnStep(td_error, m_t, False, weight, "capacity", 0)
         else:  # "skip"
             step = LearnStep(td_error, m_t, False, 0.0, "capacity", 0)
@@ -429,13 +429,18 @@ class BayesianAgent:
         self._steps += 1
         return LearnStep(step.td_error, step.component, step.created, step.weight, step.weight_case, self._n)
 
-    def _update(self, m: int, a_t: int, s_t: np.ndarray, td_error: float, weight: float) -> None:
+    def _update(self, m: int, a_t: int, s_t: np.ndarray, td_error: float, weight: float, row_t: int) -> None:
         """Q update (eq. 8) and fractional NIW update of component m with weight w."""
         kappa = float(self._kappa[m])
-        step = self._alpha
-        if self._params.step_size == "visits":  # 1 / (weighted updates + 1): kappa starts at D + 1
-            step = min(step, 1.0 / (kappa - self._dim))
-        self._q[a_t, m] += step * weight * td_error
+        visits = self._params.step_size == "visits"
+        if self._params.td_error == "mixture":  # every component, by its share of s_t's likelihood
+            _kernels.mixture_q_update(self._cache_ll[row_t], self._q, self._kappa, self._n, self._dim, a_t, td_error,
+                                      self._alpha, visits)
+        else:
+            step = self._alpha
+            if visits:  # 1 / (weighted updates + 1): kappa starts at D + 1
+                step = min(step, 1.0 / (kappa - self._dim))
+            self._q[a_t, m] += step * weight * td_error
         if weight == 0.0:
             return
         _kernels.niw_absorb(self._mean[m], self._scatter[m], self._chol[m], s_t, weight, kappa)

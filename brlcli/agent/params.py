@@ -20,12 +20,20 @@ STEP_SIZES = ("schedule", "visits")
 min(alpha_t, 1 / (kappa_m - D)) for component m, i.e. one over its weighted count of updates plus one, so that a
 component's Q is an average of its TD targets rather than the last of them."""
 
+TD_ERRORS = ("component", "mixture")
+"""The TD error and Q update (eqs. 5, 8): `component`, the paper's: delta = r + gamma Q[a', m'] - Q[a_t, m_t] with
+m_t the l_inf-nearest component, and only Q[a_t, m_t] updated; `mixture` (outside the paper): delta on the
+mixture's action values Q(s, a) = sum_m phi_m(s) Q[a, m], phi_m(s) = p(s|m) / sum_k p(s|k) (the values whose argmax
+is the greedy action of eq. 1), and every Q[a_t, m] updated in proportion to phi_m(s_t) (soft state aggregation).
+Component creation and the NIW update of m_t keep Algorithm 1's rules, on this delta."""
+
 AT_CAPACITY_POLICIES = ("merge", "skip")
 """What learn() does when it would create a component but `max_components` are in use:
 `merge` updates the l_inf-nearest component m_t with the usual weight rule instead (Q and NIW update);
 `skip` leaves Q and the components unchanged. Both report weight_case "capacity" and never raise."""
 
-_CHOICES = {"variant": VARIANTS, "at_capacity": AT_CAPACITY_POLICIES, "new_q": NEW_Q_RULES, "step_size": STEP_SIZES}
+_CHOICES = {"variant": VARIANTS, "at_capacity": AT_CAPACITY_POLICIES, "new_q": NEW_Q_RULES, "step_size": STEP_SIZES,
+            "td_error": TD_ERRORS}
 """The string fields of BRLParams and their allowed values."""
 
 
@@ -68,6 +76,8 @@ class BRLParams:
     """How a new component's Q column starts (see NEW_Q_RULES)."""
     step_size: str = "schedule"
     """The Q update's step size (see STEP_SIZES); 'schedule' is the paper's."""
+    td_error: str = "component"
+    """The TD error and the components it updates (see TD_ERRORS); 'component' is the paper's."""
 
     def __post_init__(self) -> None:
         """Validate every field; a bad value raises ValueError naming it."""
