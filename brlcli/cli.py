@@ -439,7 +439,7 @@ def bench(
     from brlcli.bench.runner import find_models, prepare, run_bench, suite_version, town_versions
     from brlcli.bench.suites import build_suite, parse_shard, subset
     from brlcli.bench.suites import shard as take_shard
-    from brlcli.policy import PolicySpec, baseline_specs, build_policy
+    from brlcli.policy import PolicySpec, baseline_specs, build_policy, model_variant
 
     ex = _executor(executor, workers, ray_address)
     k, n = parse_shard(shard)
@@ -457,8 +457,11 @@ def bench(
         build_policy(p.kind, p.name, p.options)
     if deploy == "estimated" and agent in ("brl", "mp", "dqn"):
         _segnet_notice(segnet)
+    variants = {p.name: model_variant(Path(p.options["model"])) for p in pols if p.kind == "brl"}
     config = {"suite": suite, "suite_version": suite_version(suite), "town_versions": town_versions(specs),
-              "policies": [{"kind": p.kind, "name": p.name, **p.options} for p in pols], "deploy": deploy,
+              "policies": [{"kind": p.kind, "name": p.name, **p.options,
+                            **({"variant": variants[p.name]} if p.name in variants else {})} for p in pols],
+              "deploy": deploy,
               "seed": seed, "selection": {"conditions": conditions, "tasks": tasks, "weathers": weathers,
                                           "episodes": episodes}, "shard": [k, n]}
     if resume and out is None:

@@ -19,6 +19,7 @@ import numpy as np
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM, state_vector
 from brlcli.segnet import check_input_source, labeler_for
+from brlcli.settings import base_setting, setting_name, setting_variant  # noqa: F401 (re-exported)
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import ACTIONS, FRAMES_PER_DECISION
 from brlcli.sim.vehicle import Control
@@ -89,6 +90,17 @@ def model_training_input(model_path: Path) -> str:
     return "gt"
 
 
+def model_variant(model_path: Path) -> str:
+    """The method variant a BRL model was trained with (its config.json's `variant`; 'paper' without one)."""
+    cfg = Path(model_path).parent / "config.json"
+    if not cfg.exists():
+        return "paper"
+    try:
+        return str(json.loads(cfg.read_text())["config"].get("variant", "paper"))
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
+        raise BrlInputError(f"{cfg} is not a brl training config") from None
+
+
 def model_camera(model_path: Path) -> CameraConfig | None:
     """The state camera a BRL model was trained with (its config.json's camera_pitch_deg); None = the default."""
     cfg = Path(model_path).parent / "config.json"
@@ -101,12 +113,6 @@ def model_camera(model_path: Path) -> CameraConfig | None:
     if pitch is None or float(pitch) == CameraConfig().pitch_deg:
         return None
     return CameraConfig(pitch_deg=float(pitch))
-
-
-def setting_name(train_input: str, deploy_input: str) -> str:
-    """TGDG, TGDE, TEDE or TEDG from the training and deployment inputs."""
-    code = {"gt": "G", "estimated": "E"}
-    return f"T{code[train_input]}D{code[deploy_input]}"
 
 
 class StatePolicy:
@@ -150,7 +156,9 @@ class BRLPolicy(StatePolicy):
         if self.agent.state_dim != STATE_DIM or self.agent.n_actions != len(ACTIONS):
             raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and "
                                 f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)}")
-        super().__init__(name, setting_name(model_training_input(Path(model)), deploy), greedy_brl(self.agent),
+        self.variant = model_variant(Path(model))
+        super().__init__(name, setting_name(model_training_input(Path(model)), deploy, self.variant),
+                         greedy_brl(self.agent),
                          labeler_for(deploy, segnet), model_camera(Path(model)))
 
 

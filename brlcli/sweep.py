@@ -158,7 +158,8 @@ def bench_config(cfg_dict: dict[str, Any], model: str, policy: str, routes: str,
     deploy = cfg_dict["input"]
     pol = PolicySpec("brl", policy, {"model": model, "deploy": deploy, "segnet": cfg_dict.get("segnet")})
     config = {"suite": routes, "suite_version": suite_version(routes), "town_versions": town_versions(specs),
-              "policies": [{"kind": pol.kind, "name": pol.name, **pol.options}], "deploy": deploy,
+              "policies": [{"kind": pol.kind, "name": pol.name, **pol.options,
+                            "variant": cfg_dict.get("variant", "paper")}], "deploy": deploy,
               "seed": bench_seed, "selection": {"conditions": None, "tasks": None, "weathers": None,
                                                 "episodes": episodes}, "shard": [1, 1]}
     return specs, [pol], config

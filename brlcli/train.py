@@ -229,7 +229,9 @@ class _Curve:
         self.rows = [r for r in read_curve(self.path) if r["env_steps"] <= step] if self.path.exists() else []
         self.labeler = env.labeler
         self.camera = cfg.camera()
-        self.setting = "TGDG" if cfg.input == "gt" else "TEDE"
+        from brlcli.settings import setting_name
+
+        self.setting = setting_name(cfg.input, cfg.input, cfg.variant)
         self.evaluator = SuiteEvaluator("paper")
         self.eval_s = 0.0
 

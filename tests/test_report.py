@@ -387,3 +387,28 @@ def test_cli_writes_a_report(tmp_path: Path) -> None:
     assert "TGDG" in r.stderr and "missing" in r.stderr  # the terminal summary
     assert (out / "report.md").is_file() and (out / "tables" / "paper_test_table.csv").is_file()
     assert not (out / "report.html").exists() and not list(out.rglob("*.tex"))
+
+
+def test_method_variants_are_model_sets_beside_the_papers(tmp_path: Path) -> None:
+    """'TGDG (NAME)' (another method variant) gets its own average and best rows in the TGDG group, before the
+    published rows, and is not a baseline."""
+    eps = model_set("TGDG") + [{**e, "policy": "v" + e["policy"], "setting": "TGDG (visits)",
+                                "frames_file": e["frames_file"].replace("frames/", "frames/v")}
+                               for e in model_set("TGDG")]
+    out = tmp_path / "rep"
+    build_report([write_results(tmp_path / "r", eps)], out=out, formats="csv")
+    table = read_csv(out / "tables" / "paper_test_table.csv")
+    rows = [(r["Setting"], r["Row"].split(":")[0], r["Source"]) for r in table if r["Setting"].startswith("TGDG")]
+    assert rows == [("TGDG", "average", "ours"), ("TGDG", "best model", "ours"),
+                    ("TGDG (visits)", "average", "ours"), ("TGDG (visits)", "best model", "ours"),
+                    ("TGDG", "average", "published"), ("TGDG", "best model", "published")]
+
+
+def test_setting_labels_name_the_variant() -> None:
+    from brlcli.settings import base_setting, setting_name, setting_variant
+
+    assert setting_name("gt", "estimated") == "TGDE"
+    assert setting_name("estimated", "gt", "reference-code") == "TEDG (reference-code)"
+    assert base_setting("TEDG (reference-code)") == "TEDG"
+    assert setting_variant("TEDG (reference-code)") == "reference-code"
+    assert setting_variant("TGDG") == "paper"

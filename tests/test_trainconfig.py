@@ -117,3 +117,18 @@ def test_cli_set_with_resume_of_another_configuration_is_refused(tmp_path: Path)
     assert r.returncode == 2 and "another configuration" in r.stderr
     r = _brl("train", "--steps", "12", "--no-evaluate", "--resume", "--out", str(out))
     assert r.returncode == 0, r.stderr
+
+
+def test_models_keep_their_variant_in_bench_labels(tmp_path: Path) -> None:
+    """A model trained with another variant is benched under 'TGDG (NAME)', and bench.json names its variant."""
+    out = tmp_path / "ref"
+    r = _brl("train", "--variant", "reference-code", "--steps", "12", "--no-evaluate", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert json.loads((out / "seed_0" / "config.json").read_text())["config"]["variant"] == "reference-code"
+    bench = tmp_path / "bench"
+    r = _brl("bench", "--suite", "paper", "--model", str(out / "seed_0"), "--episodes", "2", "--out", str(bench))
+    assert r.returncode == 0, r.stderr
+    rows = [json.loads(line) for line in (bench / "results.jsonl").read_text().splitlines()]
+    assert {row["setting"] for row in rows} == {"TGDG (reference-code)"}
+    policies = json.loads((bench / "bench.json").read_text())["config"]["policies"]
+    assert [p["variant"] for p in policies] == ["reference-code"]

@@ -148,8 +148,8 @@ def _corl_section(episodes: list[dict[str, Any]], summary: list[dict[str, Any]])
 
 def _training_section(runs: list[TrainingRun], images: dict[str, Callable[[], bytes]], plots: bool) -> tb.Section:
     marks = tb.run_marks(runs)
-    inputs = sorted({r.input for r in runs})
-    text = (f"{len(runs)} training runs ({', '.join(f'{sum(r.input == i for r in runs)} on {i} input' for i in inputs)}"
+    inputs = sorted({r.group for r in runs})
+    text = (f"{len(runs)} training runs ({', '.join(f'{sum(r.group == i for r in runs)} on {i} input' for i in inputs)}"
             "): reward and TD error per learning step from log.csv, final greedy evaluation from summary.json.")
     section = tb.Section("Training convergence", text, [tb.training_table(runs, marks)])
     if plots:

@@ -41,7 +41,10 @@ def _learner(run: Path) -> str:
         raise BrlInputError(f"{cfg_path} is not a brl run configuration") from None
     tag = {"gt": "TG", "estimated": "TE"}.get(str(cfg.get("input", "gt")), "T?")
     algo = cfg.get("algo")
-    return f"{str(algo).upper()} ({tag})" if algo else f"BRL ({tag})"
+    if algo:
+        return f"{str(algo).upper()} ({tag})"
+    variant = str(cfg.get("variant", "paper"))
+    return f"BRL ({tag})" if variant == "paper" else f"BRL {variant} ({tag})"
 
 
 def load_curves(dirs: list[str | Path]) -> list[CurveRun]:

@@ -234,6 +234,13 @@ class TrainingRun:
     td_error: np.ndarray
     evaluation: dict[str, Any] | None
     """summary.json's greedy evaluation (success_rate, either_share, collision_free_rate), None if absent."""
+    variant: str = "paper"
+    """The method variant it was trained with (config.json)."""
+
+    @property
+    def group(self) -> str:
+        """Runs compared together: the training input, and the method variant when it is not the paper's."""
+        return self.input if self.variant == "paper" else f"{self.input} ({self.variant})"
 
 
 def _run_paths(item: Path) -> list[Path]:
@@ -293,11 +300,13 @@ def load_runs(run_dirs: Sequence[str | Path]) -> list[TrainingRun]:
                 raise BrlInputError(f"{path / 'log.csv'} holds no learning steps yet")
             config = _read_json(path / "config.json") or {}
             train_input = str((config.get("config") or {}).get("input", "gt"))
+            variant = str((config.get("config") or {}).get("variant", "paper"))
             summary = _read_json(path / "summary.json") or {}
             evaluation = (summary.get("summary") or {}).get("eval")
             name = f"{path.resolve().parent.name}/{path.resolve().name}"
             if name in runs and runs[name].path.resolve() != path.resolve():
                 raise BrlInputError(f"two training runs are named {name} ({runs[name].path} and {path})")
             runs[name] = TrainingRun(name=name, path=path, input=train_input, step=step, reward=reward,
-                                     td_error=td, evaluation=evaluation if isinstance(evaluation, dict) else None)
+                                     td_error=td, evaluation=evaluation if isinstance(evaluation, dict) else None,
+                                     variant=variant)
     return [runs[k] for k in sorted(runs)]

@@ -144,10 +144,11 @@ def convergence_figure(runs: Sequence[TrainingRun], marks: RunMarks) -> bytes:
     ± 1 std band, the best and the worst run (final greedy evaluation) as thin lines."""
     fig = Figure(figsize=(WIDTH_IN, 7.5), dpi=DPI, layout="constrained")
     ax_r, ax_td = fig.subplots(2, 1, sharex=True)
-    for train_input in sorted({r.input for r in runs}):
-        group = [r for r in runs if r.input == train_input]
+    for train_input in sorted({r.group for r in runs}):
+        group = [r for r in runs if r.group == train_input]
         color, best_color, worst_color = INPUT_COLORS.get(train_input, ("tab:purple", "indigo", "tab:brown"))
-        tag = {"gt": "TG", "estimated": "TE"}.get(train_input, train_input)
+        base, _, variant = train_input.partition(" ")
+        tag = {"gt": "TG", "estimated": "TE"}.get(base, base) + (f" {variant}" if variant else "")
         length = min(r.step.size for r in group)
         window = min(SMOOTHING_STEPS, length)
         for ax, attr in ((ax_r, "reward"), (ax_td, "td_error")):

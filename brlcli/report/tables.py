@@ -21,6 +21,7 @@ from brlcli.bench.metrics import (
 )
 from brlcli.report import published as pub
 from brlcli.report.load import TrainingRun
+from brlcli.settings import base_setting
 
 # --------------------------------------------------------------------------------------------------------------
 # Cells and tables
@@ -114,9 +115,12 @@ class Section:
 
 
 def setting_order(settings: Sequence[str]) -> list[str]:
-    """The paper's settings in its order, then any other setting (baselines) sorted by name."""
+    """The paper's settings in its order (each followed by its other method variants, 'TGDG (NAME)', by name), then
+    any other setting (baselines) sorted by name."""
     present = set(settings)
-    return [s for s in pub.PAPER_SETTINGS if s in present] + sorted(present - set(pub.PAPER_SETTINGS))
+    ordered = [s for p in pub.PAPER_SETTINGS for s in sorted(present, key=lambda x: (x != p, x))
+               if base_setting(s) == p]
+    return ordered + sorted(present - set(ordered))
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -184,8 +188,9 @@ class PaperData:
         return list(self.models)
 
     def is_model_set(self, setting: str) -> bool:
-        """A paper setting (average and best model) rather than a baseline (one row per policy)."""
-        return setting in pub.PAPER_SETTINGS
+        """A paper setting of any method variant (average and best model) rather than a baseline (one row per
+        policy)."""
+        return base_setting(setting) in pub.PAPER_SETTINGS
 
 
 def paper_data(episodes: Sequence[dict[str, Any]]) -> PaperData:
@@ -215,34 +220,40 @@ def _published_cells(r: pub.PublishedPaperRow) -> list[Cell]:
             EMPTY if r.dist_std_m is None else num(r.dist_std_m, 0, 0)]
 
 
+def _our_rows(t: Table, setting: str, models: list[ModelStats] | None) -> None:
+    """Our average and best-model rows of one setting label (or a 'missing' row)."""
+    if models:
+        scores = np.array([m.score for m in models])
+        dists = np.array([m.dist_m for m in models])
+        mean = {k: float(np.mean([getattr(m, k) for m in models]))
+                for k in ("offroad", "otherlane", "either", "success", "no_collision")}
+        t.add([Cell.of(setting), Cell.of("average"), Cell.of("ours"), count(len(models)),
+               count(sum(m.episodes for m in models)),
+               *(pct(mean[k]) for k in ("offroad", "otherlane", "either", "success", "no_collision")),
+               num(float(scores.mean()), 2, 6), num(float(scores.std()), 2, 6), num(float(dists.mean()), 0, 3),
+               num(float(dists.std()), 0, 3)])
+        b = best_model(models)
+        t.add([Cell.of(setting), Cell.of(f"best model: {b.policy}"), Cell.of("ours"), count(1), count(b.episodes),
+               *_stats_cells(b), num(b.score, 2, 6), EMPTY, num(b.dist_m, 0, 3), EMPTY])
+    else:
+        t.add([Cell.of(setting), Cell.of("missing: no results for this setting"), Cell.of("ours"), count(0),
+               count(0), *([EMPTY] * 9)])
+
+
 def paper_table(data: PaperData) -> Table:
     """The paper's test table: per setting our average (± std over models) and best model, then the published
     rows; baselines (other settings) one row per policy; the published RL and IL rows last."""
     t = Table("paper_test_table", "Lane-keeping test table (the paper's tab:ZGHSmall)", list(PAPER_COLUMNS),
               label_columns=3)
     published_rows = {(r.setting, r.row): r for r in pub.PAPER_TABLE}
-    for setting in pub.PAPER_SETTINGS:
+    for paper_setting in pub.PAPER_SETTINGS:
         t.group()
-        models = data.models.get(setting)
-        if models:
-            scores = np.array([m.score for m in models])
-            dists = np.array([m.dist_m for m in models])
-            mean = {k: float(np.mean([getattr(m, k) for m in models]))
-                    for k in ("offroad", "otherlane", "either", "success", "no_collision")}
-            t.add([Cell.of(setting), Cell.of("average"), Cell.of("ours"), count(len(models)),
-                   count(sum(m.episodes for m in models)),
-                   *(pct(mean[k]) for k in ("offroad", "otherlane", "either", "success", "no_collision")),
-                   num(float(scores.mean()), 2, 6), num(float(scores.std()), 2, 6), num(float(dists.mean()), 0, 3),
-                   num(float(dists.std()), 0, 3)])
-            b = best_model(models)
-            t.add([Cell.of(setting), Cell.of(f"best model: {b.policy}"), Cell.of("ours"), count(1), count(b.episodes),
-                   *_stats_cells(b), num(b.score, 2, 6), EMPTY, num(b.dist_m, 0, 3), EMPTY])
-        else:
-            t.add([Cell.of(setting), Cell.of("missing: no results for this setting"), Cell.of("ours"), count(0),
-                   count(0), *([EMPTY] * 9)])
+        labels = [s for s in data.settings if base_setting(s) == paper_setting] or [paper_setting]
+        for setting in labels:
+            _our_rows(t, setting, data.models.get(setting))
         for row in ("average", "best model"):
-            r = published_rows[(setting, row)]
-            t.add([Cell.of(setting), Cell.of(row), Cell.of("published"), EMPTY, EMPTY, *_published_cells(r)])
+            r = published_rows[(paper_setting, row)]
+            t.add([Cell.of(paper_setting), Cell.of(row), Cell.of("published"), EMPTY, EMPTY, *_published_cells(r)])
     baselines = [s for s in data.settings if not data.is_model_set(s)]
     for setting in baselines:
         t.group()
@@ -470,8 +481,8 @@ def run_marks(runs: Sequence[TrainingRun]) -> RunMarks:
     rate, then name)."""
     best: dict[str, str] = {}
     worst: dict[str, str] = {}
-    for train_input in sorted({r.input for r in runs}):
-        rated = [r for r in runs if r.input == train_input and r.evaluation is not None
+    for train_input in sorted({r.group for r in runs}):
+        rated = [r for r in runs if r.group == train_input and r.evaluation is not None
                  and all(np.isfinite(_eval_key(r)))]
         if not rated:
             continue
@@ -492,19 +503,19 @@ def training_table(runs: Sequence[TrainingRun], marks: RunMarks) -> Table:
                "TD error last 10 %", "Eval success [%]", "Eval either [%]", "Eval collision-free [%]"],
               label_columns=3)
     last = None
-    for r in sorted(runs, key=lambda r: (r.input, r.name)):
-        if r.input != last:
+    for r in sorted(runs, key=lambda r: (r.group, r.name)):
+        if r.group != last:
             t.group()
-            last = r.input
-        mark = [m for m, d in (("best", marks.best), ("worst", marks.worst)) if d.get(r.input) == r.name]
+            last = r.group
+        mark = [m for m, d in (("best", marks.best), ("worst", marks.worst)) if d.get(r.group) == r.name]
         ev = r.evaluation or {}
-        t.add([Cell.of(r.name), Cell.of(r.input), Cell.of(" / ".join(mark)), count(int(r.step.size)),
+        t.add([Cell.of(r.name), Cell.of(r.group), Cell.of(" / ".join(mark)), count(int(r.step.size)),
                num(_part_mean(r.reward, True), 2), num(_part_mean(r.reward, False), 2),
                num(_part_mean(r.td_error, True), 2), num(_part_mean(r.td_error, False), 2),
                pct(ev.get("success_rate")), pct(ev.get("either_share")), pct(ev.get("collision_free_rate"))])
     t.notes = ["Best / worst: by the final greedy evaluation's success rate on the lane-keeping routes "
                "(summary.json; ties: lower Either share, then higher collision-free rate, then name), per training "
-               "input (gt: TG models, estimated: TE models)."]
+               "input (gt: TG models, estimated: TE models) and method variant (named when it is not the paper's)."]
     if any(r.evaluation is None for r in runs):
         t.notes.append(f"{DASH}: the run has no final evaluation (summary.json) yet.")
     return t
