@@ -23,8 +23,9 @@ app = typer.Typer(
 )
 
 FRESH_OUT = "a new runs/{command}/YYYYmmdd-HHMMSS"
-VARIANT_HELP = ("Method: paper (eqs. 1-11, Algorithm 1, Table I), reference-code (the authors' code's agent) "
-                "[default: paper].")
+VARIANT_HELP = ("Method: averaging-restart (recommended, outside the paper: per-component averaging of Q and a "
+                "restart when training is trapped), paper (eqs. 1-11, Algorithm 1, Table I as written), "
+                "reference-code (the authors' code's agent) [default: averaging-restart].")
 
 
 def _out(value: str | None, command: str) -> Path:
@@ -208,6 +209,8 @@ def train_summary_line(s: dict) -> str:
     """One trained model's end-of-run line: totals, and the greedy evaluation's success beside Either and Score."""
     line = (f"seed {s['seed']}: {s['steps']} steps, {s['episodes']} episodes, {s['components']} components, "
             f"{s['steps_per_s']:.0f} steps/s")
+    if s.get("restarts"):
+        line += f" ({len(s['restarts'])} restart{'s' if len(s['restarts']) > 1 else ''})"
     ev = s.get("eval")
     if ev:
         line += (f", lane-keeping success {ev['success_rate']:.0%}  Either {ev['either_share']:.1%}  "

@@ -142,6 +142,7 @@ def test_train_summary_line_reports_either_and_score_beside_success() -> None:
     line = train_summary_line(s)
     assert "lane-keeping success 100%  Either 62.7%  Score 0.79 (town01 validation routes)" in line
     assert "Either" not in train_summary_line({**s, "eval": None})
+    assert "(2 restarts)" in train_summary_line({**s, "restarts": [{}, {}]}) and "restart" not in line
 
 
 def test_restarts_on_a_trap_and_resumes_bit_identical(tmp_path: Path) -> None:
