@@ -833,7 +833,6 @@ def train_rl(
     """Train the deep RL baseline (SB3 DQN) on the BRL agent's env, state, reward and actions."""
     import json
 
-    from click.core import ParameterSource
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -844,7 +843,8 @@ def train_rl(
 
     options = {"algo": algo, "town": town, "weather": get_weather(weather).id, "input": input, "steps": steps,
                "eval_every": eval_every, "eval_suite": eval_suite, "seed": seed, "segnet": segnet}
-    given = {k: v for k, v in options.items() if ctx.get_parameter_source(k) == ParameterSource.COMMANDLINE}
+    given = {k: v for k, v in options.items()  # typer may vendor click: compare the source by name
+             if getattr(ctx.get_parameter_source(k), "name", None) == "COMMANDLINE"}
     cfg = resolve_plain_config(DeepRLConfig, [config, given, set_ or []], what="deep RL")
     if cfg.segnet is not None and cfg.input != "estimated":
         raise_input("--segnet is only used with --input estimated")

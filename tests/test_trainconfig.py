@@ -81,8 +81,9 @@ def test_cli_print_config_shows_the_resolved_configuration(tmp_path: Path) -> No
     assert cfg["params"]["step_size"] == "visits" and cfg["params"]["gamma"] == 0.8
     r = _brl("train", "--set", "steps=7", "--steps", "30", "--print-config")  # --set is applied last
     assert json.loads(r.stdout)["steps"] == 7
-    r = _brl("train-rl", "--set", "offroad_end=0.25", "--print-config")
+    r = _brl("train-rl", "--set", "offroad_end=0.25", "--steps", "40", "--print-config")
     assert r.returncode == 0 and json.loads(r.stdout)["offroad_end"] == 0.25
+    assert json.loads(r.stdout)["steps"] == 40  # an option given on the command line is kept
 
 
 @pytest.mark.parametrize("args, message", [
