@@ -84,7 +84,8 @@ def test_cli_trains_and_refuses_to_overwrite(tmp_path: Path) -> None:
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "seed_0" / "summary.json").read_text())["summary"]
-    assert summary["steps"] == 30
+    assert summary["final_attempt_steps"] == 30  # the default variant restarts when trapped: 30 steps in the last
+    assert summary["steps"] == 30 + sum(r["attempt_steps"] for r in summary["restarts"])
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert again.returncode == 2 and "--resume" in again.stderr
 
