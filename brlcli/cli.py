@@ -5,7 +5,7 @@ from __future__ import annotations
 import errno
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -99,6 +99,18 @@ def preview(
         typer.echo(str(p))
 
 
+def _with_segnet(cfg: Any) -> Any:
+    """A training config (TrainConfig, DeepRLConfig) with the shipped net filled in for estimated input; --segnet
+    without estimated input is refused."""
+    if cfg.segnet is not None and cfg.input != "estimated":
+        raise_input("--segnet is only used with --input estimated")
+    if cfg.input == "estimated" and cfg.segnet is None:
+        from brlcli.models import default_segnet_path
+
+        return type(cfg).from_dict({**cfg.to_dict(), "segnet": str(default_segnet_path())})
+    return cfg
+
+
 @app.command()
 def train(
     town: Annotated[str | None, typer.Option(help="Town to train in [default: town01].")] = None,
@@ -142,7 +154,7 @@ def train(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from brlcli.sim.weather import get_weather
-    from brlcli.train import DEFAULT_VARIANT, TrainConfig, check_inputs, check_run_dirs, parse_seeds, train_many
+    from brlcli.train import DEFAULT_VARIANT, check_inputs, check_run_dirs, parse_seeds, train_many
     from brlcli.trainconfig import parse_sets, read_config_file, resolve_config
 
     ex = _executor(executor, workers, ray_address)
@@ -158,12 +170,7 @@ def train(
         if "seed" in layer:
             raise_input(f"{where} cannot set seed: seeds come from --seed or --seeds")
     cfg = resolve_config([*layers, {"seed": seed_list[0]}], default_variant=DEFAULT_VARIANT)
-    if cfg.segnet is not None and cfg.input != "estimated":
-        raise_input("--segnet is only used with --input estimated")
-    if cfg.input == "estimated" and cfg.segnet is None:
-        from brlcli.models import default_segnet_path
-
-        cfg = TrainConfig.from_dict({**cfg.to_dict(), "segnet": str(default_segnet_path())})
+    cfg = _with_segnet(cfg)
     if print_config:
         typer.echo(json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
         return
@@ -846,12 +853,7 @@ def train_rl(
     given = {k: v for k, v in options.items()  # typer may vendor click: compare the source by name
              if getattr(ctx.get_parameter_source(k), "name", None) == "COMMANDLINE"}
     cfg = resolve_plain_config(DeepRLConfig, [config, given, set_ or []], what="deep RL")
-    if cfg.segnet is not None and cfg.input != "estimated":
-        raise_input("--segnet is only used with --input estimated")
-    if cfg.input == "estimated" and cfg.segnet is None:
-        from brlcli.models import default_segnet_path
-
-        cfg = DeepRLConfig.from_dict({**cfg.to_dict(), "segnet": str(default_segnet_path())})
+    cfg = _with_segnet(cfg)
     if print_config:
         typer.echo(json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
         return
