@@ -93,6 +93,8 @@ class TrainConfig:
     restart_below: float | None = None  # outside the paper: restart learning (a fresh agent) when the mean reward
     # per step over the last RESTART_WINDOW of steps is below this at RESTART_CHECKS of an attempt (None: never)
     max_restarts: int = 2  # at most this many restarts; the last attempt always runs to the end
+    restart_offroad_above: float | None = None  # outside the paper: ... or when the share of those steps with part of
+    # the car off the road is above this (None: the reward test only; needs restart_below)
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
@@ -102,6 +104,10 @@ class TrainConfig:
             raise BrlInputError("--curve-every must be >= 0")
         if self.max_restarts < 0:
             raise BrlInputError("max_restarts must be >= 0")
+        if self.restart_offroad_above is not None and self.restart_below is None:
+            raise BrlInputError("restart_offroad_above needs restart_below (the trap test it extends)")
+        if self.restart_offroad_above is not None and not 0.0 <= self.restart_offroad_above <= 1.0:
+            raise BrlInputError(f"restart_offroad_above must lie in [0, 1], got {self.restart_offroad_above}")
         try:
             self.reward_params()
             self.camera()
@@ -272,7 +278,8 @@ def _trapped(cfg: TrainConfig, step: int, stats: dict) -> bool:
     if done >= len(RESTART_CHECKS) or step - stats["attempt_start"] < RESTART_CHECKS[done] * cfg.steps:
         return False
     stats["checks_done"] = done + 1
-    return bool(np.mean(stats["window"]) < cfg.restart_below)
+    off = cfg.restart_offroad_above is not None and np.mean(stats["window_offroad"]) > cfg.restart_offroad_above
+    return bool(np.mean(stats["window"]) < cfg.restart_below or off)
 
 
 def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
@@ -309,6 +316,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     stats.setdefault("attempt_start", 0)  # the checks it passed, the rewards of the trap test's window
     stats.setdefault("checks_done", 0)
     stats.setdefault("window", [])
+    stats.setdefault("window_offroad", [])
     stats.setdefault("restarts", [])
     curve = _Curve(run_dir, cfg, env, step) if cfg.curve_every else None
     t0 = time.perf_counter() - stats["wall_s"]
@@ -335,8 +343,9 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                     stats["reward_sum"] += reward
                     if cfg.restart_below is not None:
                         stats["window"].append(reward)
+                        stats["window_offroad"].append(int(info["measurements"]["intersection_offroad"] > 0.0))
                         if len(stats["window"]) > max(1, round(RESTART_WINDOW * cfg.steps)):
-                            del stats["window"][0]
+                            del stats["window"][0], stats["window_offroad"][0]
                     recent = [*recent, reward][-100:]
                     if curve is not None and step % cfg.curve_every == 0:
                         curve.evaluate(agent, step)
@@ -356,8 +365,10 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
             stats["goals"] += int(reached)
             if _trapped(cfg, step, stats):
                 stats["restarts"].append({"step": step, "attempt_steps": step - stats["attempt_start"],
-                                          "mean_reward": float(np.mean(stats["window"]))})
-                stats.update(attempt=stats["attempt"] + 1, attempt_start=step, checks_done=0, window=[])
+                                          "mean_reward": float(np.mean(stats["window"])),
+                                          "offroad_share": float(np.mean(stats["window_offroad"]))})
+                stats.update(attempt=stats["attempt"] + 1, attempt_start=step, checks_done=0, window=[],
+                             window_offroad=[])
                 agent = BayesianAgent(state_dim=30, n_actions=4, params=cfg.agent_params())
             stats["wall_s"] = time.perf_counter() - t0
             ckpt.save(agent, rng, step, episode, step, stats)

@@ -173,3 +173,25 @@ def test_restarts_on_a_trap_and_resumes_bit_identical(tmp_path: Path) -> None:
     assert _files(tmp_path / "cut") == _files(tmp_path / "full")
     never = TrainConfig(steps=90, seed=2, evaluate=False, restart_below=-1e9)
     assert train_run(never, tmp_path / "never")["summary"]["attempts"] == 1
+
+
+def test_trap_test_reads_the_reward_and_the_off_road_share() -> None:
+    """The trap test fires at its checks only: on a low mean reward, or (if set) on a high off-road share."""
+    from brlcli.train import _trapped
+
+    def stats(rewards: list[float], offroad: list[int], attempt: int = 0) -> dict:
+        return {"attempt": attempt, "attempt_start": 0, "checks_done": 0, "window": rewards,
+                "window_offroad": offroad}
+
+    reward_only = TrainConfig(steps=90, restart_below=-7.0)
+    both = TrainConfig(steps=90, restart_below=-7.0, restart_offroad_above=0.2)
+    assert not _trapped(reward_only, 29, stats([-9.0] * 15, [1] * 15))  # before the first check (a third)
+    assert _trapped(reward_only, 30, stats([-9.0] * 15, [0] * 15))
+    assert not _trapped(reward_only, 30, stats([-4.0] * 15, [1] * 15))  # edge hugging: the reward test misses it
+    assert _trapped(both, 30, stats([-4.0] * 15, [1] * 4 + [0] * 11))  # 4 / 15 off the road: above 0.2
+    assert not _trapped(both, 30, stats([-4.0] * 15, [1] * 3 + [0] * 12))  # 3 / 15 = 0.2: not above
+    assert not _trapped(both, 30, stats([-9.0] * 15, [1] * 15, attempt=2))  # max_restarts reached
+    s = stats([-4.0] * 15, [0] * 15)
+    assert not _trapped(both, 30, s) and s["checks_done"] == 1 and not _trapped(both, 31, s)  # one test per check
+    with pytest.raises(BrlInputError, match="needs restart_below"):
+        TrainConfig(restart_offroad_above=0.2)
