@@ -56,7 +56,7 @@ gamma 0.8, rho_rate 3e-5, no alpha decay, Q normalised over actions, m_t by like
 `averaging-restart` (outside the paper; docs/lane-keeping-study.md, rounds 8-10): the paper's, with a per-component
 step size in eq. 8 (Q[a, m] averages its TD targets: `params.step_size = "visits"`) and a restart of learning from a
 fresh agent when training is trapped (mean reward per step below -7 over the last 750 steps at step 1,500 or 3,000
-of an attempt; at most two restarts)."""
+of an attempt; at most two restarts, none after step 4,500 of the run, so at most 9,000 learning steps)."""
 DEFAULT_VARIANT = "averaging-restart"
 """The variant `brl train` uses when none is named: the recommended one, which beats `paper` on the validation routes
 by more than the standard error of the difference (docs/lane-keeping-study.md, round 10)."""
@@ -92,7 +92,8 @@ class TrainConfig:
     otherlane_end: float | None = None  # end a training episode when the share in the opposite lane exceeds it
     restart_below: float | None = None  # outside the paper: restart learning (a fresh agent) when the mean reward
     # per step over the last RESTART_WINDOW of steps is below this at RESTART_CHECKS of an attempt (None: never)
-    max_restarts: int = 2  # at most this many restarts; the last attempt always runs to the end
+    max_restarts: int = 2  # at most this many restarts, and none that would take a run past 2 x steps; the last
+    # attempt always runs to the end
     restart_offroad_above: float | None = None  # outside the paper: ... or when the share of those steps with part of
     # the car off the road is above this (None: the reward test only; needs restart_below)
 
@@ -276,6 +277,8 @@ def _trapped(cfg: TrainConfig, step: int, stats: dict) -> bool:
         return False
     done = stats["checks_done"]
     if done >= len(RESTART_CHECKS) or step - stats["attempt_start"] < RESTART_CHECKS[done] * cfg.steps:
+        return False
+    if step > cfg.steps:  # a restart here would take the run past twice its steps: keep the attempt
         return False
     stats["checks_done"] = done + 1
     off = cfg.restart_offroad_above is not None and np.mean(stats["window_offroad"]) > cfg.restart_offroad_above
