@@ -19,7 +19,7 @@ import numpy as np
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM, state_vector
 from brlcli.segnet import check_input_source, labeler_for
-from brlcli.settings import base_setting, setting_name, setting_variant  # noqa: F401 (re-exported)
+from brlcli.settings import setting_name
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import ACTIONS, FRAMES_PER_DECISION
 from brlcli.sim.vehicle import Control
@@ -79,37 +79,33 @@ class PolicySpec:
         return PolicySpec(self.kind, self.name, opts)
 
 
+def _training_config(model_path: Path) -> dict[str, Any]:
+    """The training configuration in the config.json beside a BRL model ({} without one)."""
+    cfg = Path(model_path).parent / "config.json"
+    if not cfg.exists():
+        return {}
+    try:
+        config = json.loads(cfg.read_text())["config"]
+    except (json.JSONDecodeError, KeyError, TypeError):
+        raise BrlInputError(f"{cfg} is not a brl training config") from None
+    if not isinstance(config, dict):
+        raise BrlInputError(f"{cfg} is not a brl training config")
+    return config
+
+
 def model_training_input(model_path: Path) -> str:
     """'gt' or 'estimated': the input a BRL model was trained on, from the config.json beside it (default gt)."""
-    cfg = Path(model_path).parent / "config.json"
-    if cfg.exists():
-        try:
-            return str(json.loads(cfg.read_text())["config"].get("input", "gt"))
-        except (json.JSONDecodeError, KeyError, TypeError):
-            raise BrlInputError(f"{cfg} is not a brl training config") from None
-    return "gt"
+    return str(_training_config(model_path).get("input", "gt"))
 
 
 def model_variant(model_path: Path) -> str:
     """The method variant a BRL model was trained with (its config.json's `variant`; 'paper' without one)."""
-    cfg = Path(model_path).parent / "config.json"
-    if not cfg.exists():
-        return "paper"
-    try:
-        return str(json.loads(cfg.read_text())["config"].get("variant", "paper"))
-    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
-        raise BrlInputError(f"{cfg} is not a brl training config") from None
+    return str(_training_config(model_path).get("variant", "paper"))
 
 
 def model_camera(model_path: Path) -> CameraConfig | None:
     """The state camera a BRL model was trained with (its config.json's camera_pitch_deg); None = the default."""
-    cfg = Path(model_path).parent / "config.json"
-    if not cfg.exists():
-        return None
-    try:
-        pitch = json.loads(cfg.read_text())["config"].get("camera_pitch_deg")
-    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
-        raise BrlInputError(f"{cfg} is not a brl training config") from None
+    pitch = _training_config(model_path).get("camera_pitch_deg")
     if pitch is None or float(pitch) == CameraConfig().pitch_deg:
         return None
     return CameraConfig(pitch_deg=float(pitch))

@@ -15,7 +15,3 @@ def base_setting(setting: str) -> str:
     """The paper's setting of a label: 'TGDG (reference-code)' -> 'TGDG'."""
     return setting.split(" (", 1)[0]
 
-
-def setting_variant(setting: str) -> str:
-    """The method variant of a setting label: 'TGDG (reference-code)' -> 'reference-code', 'TGDG' -> 'paper'."""
-    return setting.split(" (", 1)[1].rstrip(")") if " (" in setting else "paper"

@@ -20,28 +20,29 @@ OPEN_TABLES = {"params"}
 """Config tables whose keys are checked by their owner (params.*: BRLParams.from_dict), not against the defaults."""
 
 
-def merge_layer(base: dict[str, Any], over: dict[str, Any], where: str, defaults: dict[str, Any] | None
-                ) -> dict[str, Any]:
-    """`over` merged onto `base`: tables merge key by key into tables, anything else replaces."""
+def merge_layer(base: dict[str, Any], over: dict[str, Any], where: str, defaults: dict[str, Any] | None,
+                what: str = "training") -> dict[str, Any]:
+    """`over` merged onto `base`: tables merge key by key into tables, anything else replaces; keys not in `defaults`
+    are an error naming the `what` config."""
     out = dict(base)
     for key, value in over.items():
         name = f"{where}{key}"
         if defaults is not None and key not in defaults:
             hint = (" (a dot in a TOML table name nests tables: quote the variant name, [variants.\"a.b\"])"
                     if where == "" and isinstance(value, dict) else "")
-            raise BrlInputError(f"unknown training config key '{name}'{hint}; known keys: "
+            raise BrlInputError(f"unknown {what} config key '{name}'{hint}; known keys: "
                                 f"{', '.join(sorted(defaults))}")
         if isinstance(value, dict) and isinstance(out.get(key), dict):
             default = defaults.get(key) if defaults is not None else None
             open_table = not (isinstance(default, dict) and default) or name in OPEN_TABLES
             sub_defaults = None if open_table else default  # keys of an open table are checked by its owner
-            out[key] = merge_layer(out[key], value, f"{name}.", sub_defaults)
+            out[key] = merge_layer(out[key], value, f"{name}.", sub_defaults, what)
         else:
             out[key] = value
     return out
 
 
-def check_types(d: dict[str, Any], defaults: dict[str, Any], where: str = "") -> None:
+def check_types(d: dict[str, Any], defaults: dict[str, Any], where: str = "", what: str = "training") -> None:
     """Each value has its default's type (int for int, a number for float, a list for a tuple, ...)."""
     for key, value in d.items():
         default, name = defaults.get(key), f"{where}{key}"
@@ -58,14 +59,14 @@ def check_types(d: dict[str, Any], defaults: dict[str, Any], where: str = "") ->
         elif isinstance(default, dict):
             ok = isinstance(value, dict)
             if ok and default and name not in OPEN_TABLES:
-                check_types(value, default, f"{name}.")
+                check_types(value, default, f"{name}.", what)
         else:
             ok = isinstance(value, type(default))
         if not ok:
             kinds = ((bool, "true or false"), (int, "an integer"), (float, "a number"), (str, "a string"),
                      (list | tuple, "a list"), (dict, "a table"))
             kind = next((k for t, k in kinds if isinstance(default, t)), type(default).__name__)
-            raise BrlInputError(f"training config key '{name}' must be {kind}, not {json.dumps(value, default=str)}")
+            raise BrlInputError(f"{what} config key '{name}' must be {kind}, not {json.dumps(value, default=str)}")
 
 
 def variant_of(layers: Sequence[dict[str, Any]], default: str) -> str:
@@ -159,14 +160,8 @@ def resolve_plain_config(cls: Any, layers: Sequence[str | dict[str, Any] | Seque
             layer = read_config_file(layer)
         elif not isinstance(layer, dict):
             layer = parse_sets(layer)
-        try:
-            merged = merge_layer(merged, layer, "", defaults)
-        except BrlInputError as exc:
-            raise BrlInputError(str(exc).replace("training config", f"{what} config")) from None
-    try:
-        check_types(merged, defaults)
-    except BrlInputError as exc:
-        raise BrlInputError(str(exc).replace("training config", f"{what} config")) from None
+        merged = merge_layer(merged, layer, "", defaults, what)
+    check_types(merged, defaults, what=what)
     try:
         return cls.from_dict(merged)
     except BrlInputError:

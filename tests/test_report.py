@@ -405,10 +405,8 @@ def test_method_variants_are_model_sets_beside_the_papers(tmp_path: Path) -> Non
 
 
 def test_setting_labels_name_the_variant() -> None:
-    from brlcli.settings import base_setting, setting_name, setting_variant
+    from brlcli.settings import base_setting, setting_name
 
     assert setting_name("gt", "estimated") == "TGDE"
     assert setting_name("estimated", "gt", "reference-code") == "TEDG (reference-code)"
-    assert base_setting("TEDG (reference-code)") == "TEDG"
-    assert setting_variant("TEDG (reference-code)") == "reference-code"
-    assert setting_variant("TGDG") == "paper"
+    assert base_setting("TEDG (reference-code)") == "TEDG" and base_setting("TGDG") == "TGDG"
