@@ -416,8 +416,9 @@ def collect(
 def bench(
     suite: Annotated[str, typer.Option(help="paper (lane-keeping table), validation (the paper suite on the towns' "
                                             "validation routes) or corl2017.")] = "paper",
-    agent: Annotated[str, typer.Option(help="brl (trained models), autopilot (privileged expert), mp (modular "
-                                            "pipeline), il (imitation learning), dqn (deep RL).")] = "brl",
+    agent: Annotated[str, typer.Option(help="brl (trained models), autopilot (privileged expert), oracle (the "
+                                            "expert restricted to the BRL agent's actions), mp (modular pipeline), "
+                                            "il (imitation learning), dqn (deep RL).")] = "brl",
     model: Annotated[str | None, typer.Option(help="A trained model: BRL model.npz or run dir; il: il.pt or its dir; "
                                                    "dqn: drl.pt or its dir (default: the shipped one).")] = None,
     models: Annotated[list[str] | None, typer.Option(help="A model set: a directory of seed_N/ runs, or a glob "

@@ -28,9 +28,10 @@ if TYPE_CHECKING:
     from brlcli.bench.suites import EpisodeSpec
     from brlcli.sim.world import World
 
-AGENTS = ("brl", "autopilot", "mp", "il", "dqn")
-"""The policy kinds. brl: Bayesian RL models; autopilot: privileged expert; mp: modular pipeline; il: conditional
-imitation learning; dqn: deep RL (Stable-Baselines3 DQN)."""
+AGENTS = ("brl", "autopilot", "oracle", "mp", "il", "dqn")
+"""The policy kinds. brl: Bayesian RL models; autopilot: privileged expert; oracle: the expert restricted to the BRL
+agent's action primitives and decision rate; mp: modular pipeline; il: conditional imitation learning; dqn: deep RL
+(Stable-Baselines3 DQN)."""
 
 PATH_OPTIONS = ("model", "segnet")
 """Options of a PolicySpec that name files (resolved to absolute paths before they travel to a worker)."""
@@ -181,12 +182,42 @@ class AutopilotPolicy:
         return self._pilot.expert(obs.measurements)
 
 
+class OraclePolicy(AutopilotPolicy):
+    """The privileged expert restricted to the BRL agent's action primitives (its steering quantised to forward,
+    right or left: the nearest of 0 and +-`turn_steer`) and to a decision every `decision_frames` frames: whether
+    the agent's action set can drive a route at all (issue 20's feasibility check). `backward` is never chosen and
+    the primitives cannot brake: the oracle does not stop for traffic."""
+
+    setting = "oracle"
+    needs_camera = False
+
+    def __init__(self, name: str = "oracle", decision_frames: int = FRAMES_PER_DECISION,
+                 turn_steer: float = float(ACTIONS[1].steer)) -> None:
+        super().__init__(name)
+        if isinstance(decision_frames, bool) or not isinstance(decision_frames, int) or decision_frames < 1:
+            raise BrlInputError(f"oracle decision_frames must be a positive integer, got {decision_frames!r}")
+        if not 0.0 < turn_steer <= 1.0:
+            raise BrlInputError(f"oracle turn_steer must lie in (0, 1], got {turn_steer!r}")
+        self.frames_per_decision = decision_frames
+        forward, right, left = ACTIONS[0], ACTIONS[1], ACTIONS[2]
+        self._primitives = (forward, Control(steer=turn_steer, throttle=right.throttle),
+                            Control(steer=-turn_steer, throttle=left.throttle))
+        self._steers = np.array([0.0, turn_steer, -turn_steer])
+
+    def decide(self, obs: Observation) -> Control:
+        """The primitive whose steering is nearest the expert's (ties: forward, then right)."""
+        steer = self._pilot.expert(obs.measurements).steer
+        return self._primitives[int(np.argmin(np.abs(self._steers - steer)))]
+
+
 def build_policy(kind: str, name: str, options: dict[str, Any]) -> Policy:
     """A policy from its kind and options (a baseline's module is imported only when its kind is built)."""
     if kind == "brl":
         return BRLPolicy(name, **options)
     if kind == "autopilot":
         return AutopilotPolicy(name)
+    if kind == "oracle":
+        return OraclePolicy(name, **options)
     if kind == "mp":
         from brlcli.baselines.mp import ModularPipelinePolicy
 
@@ -204,10 +235,10 @@ def build_policy(kind: str, name: str, options: dict[str, Any]) -> Policy:
 
 def baseline_specs(agent: str, model: str | None, deploy: str, segnet: str | None) -> list[tuple[str, dict]]:
     """(policy name, options) of a baseline agent: mp needs no model; il and dqn take --model or the shipped one."""
-    if agent in ("autopilot", "mp") and model is not None:
+    if agent in ("autopilot", "oracle", "mp") and model is not None:
         raise BrlInputError(f"--agent {agent} has no trained model; drop --model")
-    if agent == "autopilot":
-        return [("autopilot", {})]
+    if agent in ("autopilot", "oracle"):
+        return [(agent, {})]
     if agent == "mp":
         return [("mp", {"deploy": deploy, "segnet": segnet})]
     if agent in ("il", "dqn"):

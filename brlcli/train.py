@@ -328,6 +328,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     with open(log_path, "a", newline="") as fh:
         while step - stats["attempt_start"] < cfg.steps:
             obs, _ = env.reset(seed=_episode_seed(cfg.seed, episode))
+            agent.begin_episode(rng)
             state = obs.astype(np.float64)
             buffer = io.StringIO()
             rows = csv.writer(buffer, lineterminator="\n")

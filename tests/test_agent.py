@@ -91,7 +91,7 @@ def trained_agent(n_steps: int = 120, seed: int = 3, params: BRLParams | None = 
 
 def assert_agents_identical(x: BayesianAgent, y: BayesianAgent) -> None:
     """Bit-identical model state."""
-    for name in ("Q", "means", "kappa", "nu", "scatter", "chol"):
+    for name in ("Q", "visits", "means", "kappa", "nu", "scatter", "chol"):
         assert np.array_equal(getattr(x, name), getattr(y, name)), name
     assert (x.alpha, x.tau, x.rho, x.steps, x.n_components) == (y.alpha, y.tau, y.rho, y.steps, y.n_components)
     assert x.params == y.params
@@ -407,6 +407,48 @@ def test_visit_count_step_size_averages_a_components_td_targets() -> None:
         BRLParams(step_size="adaptive")
 
 
+def test_action_visit_step_size_averages_each_actions_own_td_targets() -> None:
+    agent = BayesianAgent(D, A, BRLParams(step_size="action-visits", alpha_init=1.0, alpha_rate=0.0, gamma=0.0))
+    s = np.full(D, 1.0 / D) + np.r_[0.01, -0.01, np.zeros(D - 2)]  # within rho of the only component
+    for r in (-20.0, -10.0, -30.0):
+        agent.learn(s, 1, r, s)
+    agent.learn(s, 2, -4.0, s)  # another action of the same component: its own count, so step 1
+    assert agent.Q[1, 0] == pytest.approx(-20.0, rel=1e-14)  # mean of its three targets (gamma 0)
+    assert agent.Q[2, 0] == pytest.approx(-4.0, rel=1e-14)  # component-wide counts would give step 1/4
+    assert agent.Q[0, 0] == 0.1 and agent.Q[3, 0] == 0.1
+    np.testing.assert_array_equal(agent.visits, [[0.0], [3.0], [1.0], [0.0]])
+    with pytest.raises(ValueError, match="action-visits"):
+        BRLParams(step_size="action-visits", td_error="mixture")
+
+
+def test_posterior_exploration_samples_per_episode_and_narrows_with_visits() -> None:
+    """The episode's draw fixes the greedy action for the episode; tried actions' samples stay near Q."""
+    s = np.full(D, 1.0 / D)
+    greedy_per_episode = []
+    agent = BayesianAgent(D, A, BRLParams(exploration="posterior", posterior_scale=50.0, tau_init=1.0))
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        agent.begin_episode(rng)
+        acts = {agent.act(s, rng) for _ in range(5)}
+        assert len(acts) == 1  # tau 1: the sampled greedy action every time within an episode
+        greedy_per_episode.append(acts.pop())
+        assert agent.act(s, rng, greedy=True) == 0  # deployment: Q itself (all equal, lowest index)
+    assert len(set(greedy_per_episode)) == A  # untried actions: wide samples, every action greedy sometimes
+    agent._q[:, 0] = [0.0, -1.0, -1.0, -1.0]
+    agent._visits[:, 0] = 1e6  # well-tried: samples within 50 / 1000 of Q, so action 0 always wins
+    for _ in range(20):
+        agent.begin_episode(rng)
+        assert agent.act(s, rng) == 0
+    paper = BayesianAgent(D, A, BRLParams(tau_init=1.0))
+    before = rng.bit_generator.state
+    paper.begin_episode(rng)  # the paper's exploration draws nothing
+    assert rng.bit_generator.state == before
+    with pytest.raises(ValueError, match="exploration"):
+        BRLParams(exploration="ucb")
+    with pytest.raises(ValueError, match="posterior_scale"):
+        BRLParams(posterior_scale=-1.0)
+
+
 def test_schedules_follow_exponential_approach() -> None:
     params = BRLParams(alpha_rate=0.05, tau_rate=0.2, rho_rate=0.1, alpha_final=0.3, tau_final=0.9, rho_final=0.02)
     agent = BayesianAgent(D, A, params)
@@ -569,6 +611,15 @@ def test_load_rejects_bad_files(tmp_path: os.PathLike) -> None:
     _rewrite(good, bad_shape, Q=np.zeros((A + 1, 1)))
     with pytest.raises(BrlInputError, match="'Q' has shape"):
         BayesianAgent.load(bad_shape)
+
+    bad_visits = os.path.join(tmp_path, "visits.npz")
+    _rewrite(good, bad_visits, visits=-np.ones((A, 1)))
+    with pytest.raises(BrlInputError, match="'visits' must be"):
+        BayesianAgent.load(bad_visits)
+    older = os.path.join(tmp_path, "older.npz")  # written before the counts were stored: zeros
+    with np.load(good, allow_pickle=False) as npz:
+        np.savez(older, **{k: npz[k] for k in npz.files if k != "visits"})
+    assert not BayesianAgent.load(older).visits.any()
 
     truncated = os.path.join(tmp_path, "truncated.npz")
     with open(good, "rb") as fh:

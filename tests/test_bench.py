@@ -156,6 +156,21 @@ def test_autopilot_baseline_drives_the_routes(tmp_path: Path) -> None:
     assert all(r["either_steps"] == 0 for r in rows) and rows[0]["setting"] == "autopilot"
 
 
+def test_oracle_drives_a_junction_with_the_agents_primitives(tmp_path: Path) -> None:
+    """The expert quantised to forward/right/left every 7 frames still takes a CoRL2017 turn (issue 20)."""
+    from brlcli.policy import OraclePolicy
+    from brlcli.sim.gym_env import ACTIONS
+
+    specs = [s for s in build_suite("corl2017", conditions="training", tasks="navigation", weathers="1")][:1]
+    rows = run_bench(specs, [PolicySpec("oracle", "oracle", {})], tmp_path / "o", {"suite": "corl2017", "seed": 0})
+    assert rows[0]["success"] and rows[0]["setting"] == "oracle"
+    oracle = OraclePolicy()
+    assert oracle.frames_per_decision == 7 and set(oracle._primitives) == set(ACTIONS[:3])
+    for bad in ({"decision_frames": 0}, {"turn_steer": 1.5}):
+        with pytest.raises(BrlInputError, match="oracle"):
+            OraclePolicy(**bad)
+
+
 def test_without_a_model_the_shipped_gt_set_is_used() -> None:
     from brlcli.bench.runner import find_models
 

@@ -52,6 +52,29 @@ def test_interrupted_run_resumes_bit_identical(tmp_path: Path) -> None:
     assert _files(tmp_path / "cut") == _files(tmp_path / "full")
 
 
+def test_posterior_exploration_run_resumes_bit_identical(tmp_path: Path) -> None:
+    """Per-episode draws come from the run's generator after the reset, so a resumed run repeats them exactly."""
+    params = {"step_size": "action-visits", "exploration": "posterior"}
+    cfg = TrainConfig(steps=120, seed=3, evaluate=False, params=params)
+    train_run(cfg, tmp_path / "full")
+
+    class Stop(Exception):
+        pass
+
+    def kill_at_80(p) -> None:
+        if p.step >= 80:
+            raise Stop
+
+    with pytest.raises(Stop):
+        train_run(cfg, tmp_path / "cut", progress=kill_at_80)
+    train_run(cfg, tmp_path / "cut", resume=True)
+    assert _files(tmp_path / "cut") == _files(tmp_path / "full")
+    plain = TrainConfig(steps=120, seed=3, evaluate=False, params={"step_size": "action-visits"})
+    train_run(plain, tmp_path / "plain")
+    assert _files(tmp_path / "plain")[0] != _files(tmp_path / "full")[0]  # the draws change the actions taken
+    assert BayesianAgent.load(tmp_path / "full" / "model.npz").visits.sum() > 0
+
+
 def test_model_set_does_not_depend_on_worker_count(tmp_path: Path) -> None:
     cfg = TrainConfig(steps=40, evaluate=False)
     train_many(cfg, [0, 1], tmp_path / "w1", workers=1)

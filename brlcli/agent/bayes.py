@@ -211,10 +211,11 @@ class BayesianAgent:
             if old is not None and n:
                 arr[:n] = getattr(self, name)[:n]
             setattr(self, name, arr)
-        q = np.zeros((self._n_actions, capacity))
-        if old is not None and n:
-            q[:, :n] = self._q[:, :n]
-        self._q = q
+        for name in ("_q", "_visits", "_noise"):  # action values, their weighted update counts, the episode's draw
+            arr = np.zeros((self._n_actions, capacity))
+            if old is not None and n:
+                arr[:, :n] = getattr(self, name)[:, :n]
+            setattr(self, name, arr)
         # likelihood cache: rows of (state, log p(s|m), ||s - mu_m||_inf), always valid for m < n
         self._cache_states = np.zeros((_CACHE_ROWS, dim))
         self._cache_ll = np.zeros((_CACHE_ROWS, capacity))
@@ -244,6 +245,8 @@ class BayesianAgent:
         self._scatter[m] = p.init_scatter * np.eye(dim)
         self._chol[m] = math.sqrt(p.init_scatter) * np.eye(dim)
         self._q[:, m] = p.init_q
+        self._visits[:, m] = 0.0
+        self._noise[:, m] = 0.0  # a component created mid-episode joins the draw at the next episode
         self._n = m + 1
         self._refresh(m)
         return m
@@ -367,9 +370,25 @@ class BayesianAgent:
         row = self._cached_row(*self._checked(state, "state"))
         return _kernels.action_probs(self._cache_ll[row], self._q, self._n, self._params.variant != "paper")
 
+    @property
+    def visits(self) -> np.ndarray:
+        """Weighted count of updates of each action value, shape (|A|, M) (a copy)."""
+        return self._visits[:, :self._n].copy()
+
+    def begin_episode(self, rng: np.random.Generator) -> None:
+        """Start a training episode: under exploration 'posterior' draw the episode's action-value sample."""
+        if self._params.exploration == "posterior":
+            self._noise = rng.standard_normal(self._q.shape)
+
     def act(self, state: np.ndarray, rng: np.random.Generator, greedy: bool = False) -> int:
         """Behaviour policy (eq. 11): the greedy action gets (1 - tau)/|A| + tau, the others (1 - tau)/|A|."""
-        greedy_action = int(np.argmax(self.action_probabilities(state)))
+        if greedy or self._params.exploration != "posterior":
+            greedy_action = int(np.argmax(self.action_probabilities(state)))
+        else:  # the greedy action of this episode's sample of the action values (BRLParams.exploration)
+            row = self._cached_row(*self._checked(state, "state"))
+            sample = self._q + self._params.posterior_scale * self._noise / np.sqrt(self._visits + 1.0)
+            greedy_action = int(np.argmax(_kernels.action_probs(self._cache_ll[row], sample, self._n,
+                                                                self._params.variant != "paper")))
         if greedy:
             return greedy_action
         n_act = self._n_actions
@@ -440,7 +459,10 @@ class BayesianAgent:
             step = self._alpha
             if visits:  # 1 / (weighted updates + 1): kappa starts at D + 1
                 step = min(step, 1.0 / (kappa - self._dim))
+            elif self._params.step_size == "action-visits":
+                step = min(step, 1.0 / (self._visits[a_t, m] + 1.0))
             self._q[a_t, m] += step * weight * td_error
+        self._visits[a_t, m] += weight
         if weight == 0.0:
             return
         _kernels.niw_absorb(self._mean[m], self._scatter[m], self._chol[m], s_t, weight, kappa)
@@ -465,6 +487,7 @@ class BayesianAgent:
             "scatter": self._scatter[:n],
             "chol": self._chol[:n],
             "Q": self._q[:, :n],
+            "visits": self._visits[:, :n],
             "alpha": np.array(self._alpha),
             "tau": np.array(self._tau),
             "rho": np.array(self._rho),
@@ -546,6 +569,11 @@ class BayesianAgent:
             if not np.isfinite(arr).all():
                 raise BrlInputError(f"model file {path}: '{key}' contains NaN or infinity")
             arrays[key] = arr
+        visits = npz["visits"] if "visits" in npz.files else np.zeros((n_actions, n))  # absent before issue 18
+        if visits.shape != (n_actions, n) or visits.dtype != np.float64 or not np.isfinite(visits).all() \
+                or (visits < 0).any():
+            raise BrlInputError(f"model file {path}: 'visits' must be finite non-negative float64 of shape "
+                                f"{(n_actions, n)}, got shape {visits.shape} dtype {visits.dtype}")
         chol_diag = np.diagonal(arrays["chol"], axis1=1, axis2=2)
         if (arrays["kappa"] <= 0).any() or (arrays["nu"] <= dim - 1).any() or (chol_diag <= 0).any() \
                 or np.triu(arrays["chol"], k=1).any():
@@ -566,6 +594,7 @@ class BayesianAgent:
         agent._scatter[:n] = arrays["scatter"]
         agent._chol[:n] = arrays["chol"]
         agent._q[:, :n] = arrays["Q"]
+        agent._visits[:, :n] = visits
         agent._n = n
         for m in range(n):  # cold path: the caches, computed exactly as learn() computes them
             agent._refresh(m)

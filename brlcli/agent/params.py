@@ -15,10 +15,19 @@ NEW_Q_RULES = ("constant", "nearest")
 `constant`: init_q for every action and new_q_taken for a_t (the authors' code); `nearest`: a copy of the l_inf-nearest
 component m_t's column, with Q[a_t, new] = the step's TD target r_t + gamma Q[a', m']."""
 
-STEP_SIZES = ("schedule", "visits")
+STEP_SIZES = ("schedule", "visits", "action-visits")
 """The step size of the Q update (eq. 8): `schedule`, the paper's global alpha_t; `visits` (outside the paper),
 min(alpha_t, 1 / (kappa_m - D)) for component m, i.e. one over its weighted count of updates plus one, so that a
-component's Q is an average of its TD targets rather than the last of them."""
+component's Q is an average of its TD targets rather than the last of them; `action-visits` (outside the paper),
+min(alpha_t, 1 / (n[a, m] + 1)) with n[a, m] the weighted count of updates of Q[a, m] itself, so that each action
+value is the average of its own TD targets."""
+
+EXPLORATIONS = ("tau", "posterior")
+"""The behaviour policy's greedy action (eq. 11): `tau`, the paper's: argmax_a p(a|s) on Q; `posterior` (outside the
+paper): at each episode's start the agent draws z[a, m] ~ N(0, 1) and, for that episode, takes the greedy action of
+eq. 11 on Q[a, m] + posterior_scale * z[a, m] / sqrt(n[a, m] + 1) (n: the weighted count of updates of Q[a, m]),
+a per-episode sample of the action values whose spread shrinks as an action is tried (posterior sampling, "deep
+exploration"); the TD target and deployment keep Q itself."""
 
 TD_ERRORS = ("component", "mixture")
 """The TD error and Q update (eqs. 5, 8): `component`, the paper's: delta = r + gamma Q[a', m'] - Q[a_t, m_t] with
@@ -33,7 +42,7 @@ AT_CAPACITY_POLICIES = ("merge", "skip")
 `skip` leaves Q and the components unchanged. Both report weight_case "capacity" and never raise."""
 
 _CHOICES = {"variant": VARIANTS, "at_capacity": AT_CAPACITY_POLICIES, "new_q": NEW_Q_RULES, "step_size": STEP_SIZES,
-            "td_error": TD_ERRORS}
+            "td_error": TD_ERRORS, "exploration": EXPLORATIONS}
 """The string fields of BRLParams and their allowed values."""
 
 
@@ -78,6 +87,10 @@ class BRLParams:
     """The Q update's step size (see STEP_SIZES); 'schedule' is the paper's."""
     td_error: str = "component"
     """The TD error and the components it updates (see TD_ERRORS); 'component' is the paper's."""
+    exploration: str = "tau"
+    """How the behaviour policy picks its greedy action (see EXPLORATIONS); 'tau' is the paper's."""
+    posterior_scale: float = 5.0
+    """Spread (reward units) of a never-updated action value's sample under exploration = 'posterior'."""
 
     def __post_init__(self) -> None:
         """Validate every field; a bad value raises ValueError naming it."""
@@ -107,6 +120,10 @@ class BRLParams:
                 raise ValueError(f"BRLParams.{name} must be >= 0, got {getattr(self, name)}")
         if self.init_scatter <= 0.0:
             raise ValueError(f"BRLParams.init_scatter must be > 0, got {self.init_scatter}")
+        if self.td_error == "mixture" and self.step_size == "action-visits":
+            raise ValueError("BRLParams.step_size 'action-visits' works with td_error 'component' only")
+        if self.posterior_scale < 0.0:
+            raise ValueError(f"BRLParams.posterior_scale must be >= 0, got {self.posterior_scale}")
         if self.T_l > self.T_u:
             raise ValueError(f"BRLParams.T_l ({self.T_l}) must not exceed T_u ({self.T_u})")
 
