@@ -23,9 +23,10 @@ app = typer.Typer(
 )
 
 FRESH_OUT = "a new runs/{command}/YYYYmmdd-HHMMSS"
-VARIANT_HELP = ("Method: averaging-restart (recommended, outside the paper: per-component averaging of Q and a "
-                "restart when training is trapped), paper (eqs. 1-11, Algorithm 1, Table I as written), "
-                "reference-code (the authors' code's agent) [default: averaging-restart].")
+VARIANT_HELP = ("Method: action-averaging-restart (recommended, outside the paper: each action value the average "
+                "of its TD targets, and a restart when training is trapped), paper (eqs. 1-11, Algorithm 1, Table I "
+                "as written), averaging-restart (the previous recommendation: per-component averaging), "
+                "reference-code (the authors' code's agent) [default: action-averaging-restart].")
 
 
 def _out(value: str | None, command: str) -> Path:

@@ -44,7 +44,8 @@ def test_resolve_config_layers_in_order_and_records_the_variant() -> None:
 
 
 @pytest.mark.parametrize("layer, message", [
-    ({"variant": "nope"}, "unknown variant \"nope\"; choose one of paper, reference-code, averaging-restart"),
+    ({"variant": "nope"}, "unknown variant \"nope\"; choose one of paper, reference-code, averaging-restart, "
+                          "action-averaging-restart"),
     ({"offroad_endd": 1}, "unknown training config key 'offroad_endd'; known keys: "),
     ({"steps": "many"}, "training config key 'steps' must be an integer"),
     ({"params": {"gama": 0.8}}, "unknown BRLParams key(s) (params.*): gama; known keys: T_l"),
