@@ -182,17 +182,23 @@ class AutopilotPolicy:
         return self._pilot.expert(obs.measurements)
 
 
+STOP_ACTION = Control(steer=0.0, throttle=0.0, brake=1.0)
+"""A fifth action primitive outside the paper (issue 20's feasibility check): stand still or brake."""
+
+
 class OraclePolicy(AutopilotPolicy):
     """The privileged expert restricted to the BRL agent's action primitives (its steering quantised to forward,
     right or left: the nearest of 0 and +-`turn_steer`) and to a decision every `decision_frames` frames: whether
-    the agent's action set can drive a route at all (issue 20's feasibility check). `backward` is never chosen and
-    the primitives cannot brake: the oracle does not stop for traffic."""
+    the agent's action set can drive a route at all (issue 20's feasibility check). `backward` is never chosen (as a
+    brake it does worse: docs/navigation-study.md) and the paper's primitives cannot brake, so the oracle does not
+    stop for traffic unless `stop_action` adds a fifth primitive, `stop` (no throttle, full brake; outside the
+    paper), taken whenever the expert brakes."""
 
     setting = "oracle"
     needs_camera = False
 
     def __init__(self, name: str = "oracle", decision_frames: int = FRAMES_PER_DECISION,
-                 turn_steer: float = float(ACTIONS[1].steer)) -> None:
+                 turn_steer: float = float(ACTIONS[1].steer), stop_action: bool = False) -> None:
         super().__init__(name)
         if isinstance(decision_frames, bool) or not isinstance(decision_frames, int) or decision_frames < 1:
             raise BrlInputError(f"oracle decision_frames must be a positive integer, got {decision_frames!r}")
@@ -203,11 +209,14 @@ class OraclePolicy(AutopilotPolicy):
         self._primitives = (forward, Control(steer=turn_steer, throttle=right.throttle),
                             Control(steer=-turn_steer, throttle=left.throttle))
         self._steers = np.array([0.0, turn_steer, -turn_steer])
+        self._stop_action = bool(stop_action)
 
     def decide(self, obs: Observation) -> Control:
-        """The primitive whose steering is nearest the expert's (ties: forward, then right)."""
-        steer = self._pilot.expert(obs.measurements).steer
-        return self._primitives[int(np.argmin(np.abs(self._steers - steer)))]
+        """`stop` when the expert brakes (if enabled), else the primitive whose steering is nearest the expert's."""
+        expert = self._pilot.expert(obs.measurements)
+        if self._stop_action and expert.brake > 0.0:
+            return STOP_ACTION
+        return self._primitives[int(np.argmin(np.abs(self._steers - expert.steer)))]
 
 
 def build_policy(kind: str, name: str, options: dict[str, Any]) -> Policy:
