@@ -171,6 +171,26 @@ def test_oracle_drives_a_junction_with_the_agents_primitives(tmp_path: Path) -> 
             OraclePolicy(**bad)
 
 
+def test_oracle_quantises_the_experts_steering_and_stops_only_with_the_stop_action() -> None:
+    from types import SimpleNamespace
+
+    from brlcli.policy import STOP_ACTION, Observation, OraclePolicy
+    from brlcli.sim.gym_env import ACTIONS
+    from brlcli.sim.vehicle import Control
+
+    expert = {"control": Control(steer=0.3, throttle=0.4)}
+    pilot = SimpleNamespace(expert=lambda m: expert["control"])
+    obs = Observation(rgb=None, labels=None, measurements=None, command=2)
+    plain, stopping = OraclePolicy(), OraclePolicy(stop_action=True, decision_frames=3)
+    plain._pilot = stopping._pilot = pilot
+    assert plain.decide(obs) == ACTIONS[1] and stopping.decide(obs) == ACTIONS[1]  # 0.3 is nearest +0.4: right
+    expert["control"] = Control(steer=-0.1, throttle=0.2)
+    assert plain.decide(obs) == ACTIONS[0]  # nearest 0: forward
+    expert["control"] = Control(steer=-0.35, throttle=0.0, brake=1.0)
+    assert plain.decide(obs) == ACTIONS[2]  # the paper's primitives cannot brake: left
+    assert stopping.decide(obs) == STOP_ACTION and stopping.frames_per_decision == 3
+
+
 def test_without_a_model_the_shipped_gt_set_is_used() -> None:
     from brlcli.bench.runner import find_models
 
