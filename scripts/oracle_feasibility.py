@@ -1,0 +1,44 @@
+"""Issue 20's feasibility check: the privileged expert restricted to the BRL agent's action primitives (`brl bench
+--agent oracle`) with a changed decision rate or a fifth `stop` primitive, on a CoRL2017 subset.
+
+    python scripts/oracle_feasibility.py --decision-frames 3 --episodes 0.2 --out runs/issue20/corl20_oracle_f3
+    python scripts/oracle_feasibility.py --stop-action --episodes 0.2 --out runs/issue20/corl20_oracle_stop
+
+The output is a `brl bench` results directory (`brl report` reads it); `--tasks` restricts the tasks.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from brlcli.bench.runner import run_bench, suite_version, town_versions
+from brlcli.bench.suites import build_suite, subset
+from brlcli.policy import PolicySpec
+from brlcli.sim.gym_env import FRAMES_PER_DECISION
+
+
+def main() -> None:
+    """Run one oracle variant on CoRL2017 and write its results."""
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--decision-frames", type=int, default=FRAMES_PER_DECISION, help="frames between decisions")
+    ap.add_argument("--stop-action", action="store_true", help="add the fifth primitive `stop` (outside the paper)")
+    ap.add_argument("--episodes", default="0.2", help="deterministic CoRL2017 subset (as brl bench --episodes)")
+    ap.add_argument("--tasks", default=None, help="comma-separated CoRL2017 tasks (default: all four)")
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--out", type=Path, required=True)
+    args = ap.parse_args()
+    options = {"decision_frames": args.decision_frames, "stop_action": args.stop_action}
+    name = f"oracle-f{args.decision_frames}{'-stop' if args.stop_action else ''}"
+    specs = subset(build_suite("corl2017", None, args.tasks, None), args.episodes)
+    config = {"suite": "corl2017", "suite_version": suite_version("corl2017"), "town_versions": town_versions(specs),
+              "policies": [{"kind": "oracle", "name": name, **options}], "deploy": "gt", "seed": 0,
+              "selection": {"conditions": None, "tasks": args.tasks, "weathers": None, "episodes": args.episodes},
+              "shard": [1, 1]}
+    rows = run_bench(specs, [PolicySpec("oracle", name, options)], args.out, config, workers=args.workers,
+                     resume=True)
+    print(f"{name}: {sum(r['success'] for r in rows)}/{len(rows)} episodes succeeded -> {args.out}")
+
+
+if __name__ == "__main__":
+    main()
