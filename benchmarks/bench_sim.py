@@ -3,7 +3,8 @@
     python benchmarks/bench_sim.py [--repeats 5] [--steps 300] [--json out.json]
 
 Figures: town build time; decision steps/s (7 frames of physics + measurements, then 1 rendered frame of RGB
-and labels at 200x88) in town01 without traffic and with CoRL2017 traffic (20 vehicles, 50 pedestrians);
+and labels at 200x88) in town01 without traffic, with CoRL2017 traffic (20 vehicles, 50 pedestrians) and with
+NoCrash's Dense traffic (100 vehicles, 250 pedestrians; issue 20's target: >= 60 steps/s);
 measurement-only frames/s; resident memory growth over 1,000 episode resets. Each figure is the median of
 `--repeats` runs.
 """
@@ -78,6 +79,10 @@ def main() -> None:
     busy = World("town01", vehicles=20, pedestrians=50)
     results["decision_steps_per_s_corl_traffic"] = statistics.median(
         _decision_steps(busy, args.steps) for _ in range(args.repeats))
+    dense = World("town01", vehicles=100, pedestrians=250)
+    results["decision_steps_per_s_nocrash_dense"] = statistics.median(
+        _decision_steps(dense, args.steps) for _ in range(args.repeats))
+    dense.close()
     for _ in range(50):
         busy.reset()
     rss0 = _rss_mb()

@@ -416,7 +416,7 @@ def collect(
 @app.command()
 def bench(
     suite: Annotated[str, typer.Option(help="paper (lane-keeping table), validation (the paper suite on the towns' "
-                                            "validation routes) or corl2017.")] = "paper",
+                                            "validation routes), corl2017 or nocrash.")] = "paper",
     agent: Annotated[str, typer.Option(help="brl (trained models), autopilot (privileged expert), oracle (the "
                                             "expert restricted to the BRL agent's actions), mp (modular pipeline), "
                                             "il (imitation learning), dqn (deep RL).")] = "brl",
@@ -427,10 +427,11 @@ def bench(
     deploy: Annotated[str, typer.Option(help="Deployment input: gt or estimated.")] = "gt",
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --deploy estimated (default: shipped).")]
     = None,
-    conditions: Annotated[str | None, typer.Option(help="corl2017: training,new_weather,new_town,new_town_weather; "
-                                                        "paper, validation: unseen_town,training_town.")] = None,
+    conditions: Annotated[str | None, typer.Option(help="corl2017, nocrash: training,new_weather,new_town,"
+                                                        "new_town_weather; paper, validation: unseen_town,"
+                                                        "training_town.")] = None,
     tasks: Annotated[str | None, typer.Option(help="Comma-separated tasks (corl2017: straight,one_curve,navigation,"
-                                                   "navigation_dynamic).")] = None,
+                                                   "navigation_dynamic; nocrash: empty,regular,dense).")] = None,
     weathers: Annotated[str | None, typer.Option(help="Comma-separated weather ids or names.")] = None,
     episodes: Annotated[str | None, typer.Option(help="Deterministic subset: a count (40) or a fraction (0.1).")]
     = None,

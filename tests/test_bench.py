@@ -121,6 +121,8 @@ def test_bench_cli_runs_and_rejects_bad_input(tmp_path: Path, model: Path) -> No
         ["--suite", "corl2018", "--model", str(model)],
         ["--suite", "corl2017", "--tasks", "parking", "--model", str(model)],
         ["--suite", "corl2017", "--conditions", "night", "--model", str(model)],
+        ["--suite", "nocrash", "--tasks", "heavy", "--agent", "autopilot"],
+        ["--suite", "nocrash", "--conditions", "night", "--agent", "autopilot"],
         ["--weathers", "Blizzard", "--model", str(model)],
         ["--model", str(junk)],
         ["--model", str(wrong_state)],
@@ -189,6 +191,37 @@ def test_oracle_quantises_the_experts_steering_and_stops_only_with_the_stop_acti
     expert["control"] = Control(steer=-0.35, throttle=0.0, brake=1.0)
     assert plain.decide(obs) == ACTIONS[2]  # the paper's primitives cannot brake: left
     assert stopping.decide(obs) == STOP_ACTION and stopping.frames_per_decision == 3
+
+
+def test_nocrash_suite_definition() -> None:
+    from brlcli.bench.suites import NOCRASH_TRAFFIC, nocrash_timeout_s
+
+    specs = build_suite("nocrash")
+    assert len(specs) == 25 * 3 * (4 + 2 + 4 + 2)  # navigation pose pairs x traffic levels x condition weathers
+    assert {s.weather for s in specs if s.condition == "new_weather"} == {10, 14}
+    assert {s.weather for s in specs if s.condition == "new_town"} == {1, 3, 6, 8}
+    for s in specs:
+        assert (s.vehicles, s.pedestrians) == NOCRASH_TRAFFIC[s.town][s.task] and s.end_on_collision
+        assert s.timeout_s == pytest.approx(s.route_length_m / 1000 / 5 * 3600 + 20, abs=0.01)  # length rounded to mm
+    assert NOCRASH_TRAFFIC["town01"]["dense"] == (100, 250) and NOCRASH_TRAFFIC["town02"]["dense"] == (70, 150)
+    assert nocrash_timeout_s(1000.0) == pytest.approx(740.0)
+    corl = build_suite("corl2017", conditions="training", tasks="navigation", weathers="1")
+    ours = build_suite("nocrash", conditions="training", tasks="empty", weathers="1")
+    assert [(c.start, c.goal) for c in corl] == [(s.start, s.goal) for s in ours]  # CoRL2017's navigation poses
+    for bad in ({"tasks": "heavy"}, {"conditions": "night"}):
+        with pytest.raises(BrlInputError, match=r"heavy|night"):
+            build_suite("nocrash", **bad)
+
+
+def test_nocrash_collision_ends_the_episode_as_a_failure(tmp_path: Path) -> None:
+    """The oracle cannot brake: in Dense traffic it collides, and the episode stops there."""
+    specs = build_suite("nocrash", conditions="training", tasks="dense", weathers="1")[:1]
+    rows = run_bench(specs, [PolicySpec("oracle", "oracle", {})], tmp_path / "n", {"suite": "nocrash", "seed": 0})
+    r = rows[0]
+    assert r["crashed"] and r["collided"] and not r["success"] and r["time_s"] < r["timeout_s"] / 4
+    corl = build_suite("corl2017", conditions="training", tasks="navigation_dynamic", weathers="1")[:1]
+    rows = run_bench(corl, [PolicySpec("oracle", "oracle", {})], tmp_path / "c", {"suite": "corl2017", "seed": 0})
+    assert "crashed" not in rows[0]  # CoRL2017 episodes go on after a collision
 
 
 def test_without_a_model_the_shipped_gt_set_is_used() -> None:

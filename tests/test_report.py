@@ -213,6 +213,36 @@ def test_corl_success_over_weathers_and_km_between_infractions(tmp_path: Path) -
     assert "75.0 (n=3)" in md
 
 
+def test_nocrash_success_posteriors_and_outcomes(tmp_path: Path) -> None:
+    def ep(n: int, task: str, success: bool, crashed: bool, condition: str = "training") -> dict:
+        town = "town01" if condition in ("training", "new_weather") else "town02"
+        return {"suite": "nocrash", "condition": condition, "task": task, "town": town, "weather": 1, "index": n,
+                "id": f"nocrash/{town}/{condition}/{task}/w01/{n:02d}", "policy": "autopilot",
+                "setting": "autopilot", "seed": n, "success": success, "km": 0.4, "steps": 100,
+                "collided": crashed, "crashed": crashed}
+
+    eps = [ep(0, "empty", True, False), ep(1, "empty", True, False), ep(2, "dense", False, True),
+           ep(3, "dense", True, False), ep(4, "dense", False, False), ep(5, "regular", True, False, "new_town")]
+    path = tmp_path / "nocrash"
+    path.mkdir()
+    (path / "bench.json").write_text(json.dumps({"config": {"suite": "nocrash", "suite_version": 1,
+                                                            "town_versions": TOWNS}}))
+    (path / "results.jsonl").write_text("".join(json.dumps(e) + "\n" for e in eps))
+    out = tmp_path / "rep"
+    build_report([path], out=out, formats="csv,md")
+    rows = {r["Traffic"]: r for r in read_csv(out / "tables" / "nocrash_success.csv")}
+    assert float(rows["Dense"]["Training"]) == pytest.approx(100.0 / 3, abs=1e-3)
+    assert float(rows["Empty"]["Training"]) == 100.0 and rows["Empty"]["New town"] == ""
+    assert float(rows["Regular"]["New town"]) == 100.0
+    lo, hi = stats.beta(1.5, 2.5).ppf([0.025, 0.975])  # 1 success, 2 failures, Jeffreys prior
+    assert f"33.3 [{100 * lo:.1f}, {100 * hi:.1f}] (n=3)" in (out / "report.md").read_text()
+    outcomes = {r["Traffic"]: r for r in read_csv(out / "tables" / "nocrash_outcomes.csv")}
+    dense = outcomes["Dense"]
+    assert [float(dense[k]) for k in ("Success [%]", "Collision [%]", "Timeout [%]")] == \
+        pytest.approx([100 / 3, 100 / 3, 100 / 3], abs=1e-3)
+    assert "NoCrash benchmark" in (out / "report.md").read_text()
+
+
 # --------------------------------------------------------------------------------------------------------------
 # Merging, missing settings, determinism
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from brlcli.bench.metrics import FOOTPRINT_THRESHOLD, episode_infractions, km_driven
+from brlcli.bench.metrics import FOOTPRINT_THRESHOLD, INFRACTION_RULES, episode_infractions, km_driven
 from brlcli.bench.suites import GOAL_DISTANCE_M, SUITE_VERSION, EpisodeSpec
 from brlcli.errors import BrlInputError
 from brlcli.executor import Executor, run_tasks
@@ -46,8 +46,10 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
     controls = np.zeros((n_max + 1, 3))
     for k in LOG_FIELDS:
         log[k][0] = getattr(frame.measurements, k)
-    control, success, n = Control(), False, 0
+    control, success, crashed, n = Control(), False, False, 0
     gx, gy = spec.goal[0], spec.goal[1]
+    crash_rules = [INFRACTION_RULES[k] for k in ("collision_other", "collision_vehicles", "collision_pedestrians")] \
+        if spec.end_on_collision else []
     for i in range(n_max):
         m = frame.measurements
         if i % policy.frames_per_decision == 0:
@@ -64,6 +66,9 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
         for k in LOG_FIELDS:
             log[k][n] = getattr(frame.measurements, k)
         controls[n] = (control.steer, control.throttle, control.brake)
+        if any(log[r.measurement][n] - log[r.measurement][max(n - r.skip, 0)] > r.threshold for r in crash_rules):
+            crashed = True  # NoCrash: the collision ends the episode as a failure
+            break
         if math.hypot(frame.measurements.x - gx, frame.measurements.y - gy) <= GOAL_DISTANCE_M:
             success = True
             break
@@ -80,6 +85,7 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
         "success": success, "time_s": round(n * FRAME_DT_S, 3), "timeout_s": spec.timeout_s,
         "route_length_m": spec.route_length_m, "km": km_driven(log["x"], log["y"]),
         "infractions": infractions, "collided": bool(collisions[-1] > 0),
+        **({"crashed": crashed} if spec.end_on_collision else {}),
         "steps": int(n), "offroad_steps": int(off.sum()), "otherlane_steps": int(other.sum()),
         "either_steps": int((off | other).sum()),
         "final_distance_m": math.hypot(log["x"][-1] - gx, log["y"][-1] - gy),

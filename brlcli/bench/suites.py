@@ -1,4 +1,4 @@
-"""Benchmark suites as lists of episode specifications: the paper's lane-keeping table and CoRL2017."""
+"""Benchmark suites as lists of episode specifications: the paper's lane-keeping table, CoRL2017 and NoCrash."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from brlcli.sim.roadnet import RoadNetwork
 from brlcli.sim.town import load_town
 from brlcli.sim.weather import TEST_WEATHERS, TRAIN_WEATHERS, get_weather
 
-SUITES = ("paper", "validation", "corl2017")
-SUITE_VERSION = {"paper": 1, "validation": 1, "corl2017": 1}
+SUITES = ("paper", "validation", "corl2017", "nocrash")
+SUITE_VERSION = {"paper": 1, "validation": 1, "corl2017": 1, "nocrash": 1}
 #: Lane-keeping suites: suite -> the town route set it drives (same towns, weathers and metrics as the paper's).
 LANE_KEEPING_SUITES = {"paper": "lane_keeping", "validation": "validation"}
 PAPER_TOWNS = ("town02", "town01")
@@ -27,7 +27,25 @@ CORL_CONDITIONS = {
     "new_town_weather": ("town02", TEST_WEATHERS),
 }
 CORL_TRAFFIC = {"town01": (20, 50), "town02": (15, 50)}
+NOCRASH_TASKS = ("empty", "regular", "dense")
+NOCRASH_WEATHERS_TEST = (10, 14)
+"""NoCrash's new weathers: WetSunset and SoftRainSunset (CoRL2017's are 4 and 14)."""
+NOCRASH_CONDITIONS = {
+    "training": ("town01", TRAIN_WEATHERS),
+    "new_weather": ("town01", NOCRASH_WEATHERS_TEST),
+    "new_town": ("town02", TRAIN_WEATHERS),
+    "new_town_weather": ("town02", NOCRASH_WEATHERS_TEST),
+}
+NOCRASH_TRAFFIC = {  # (vehicles, pedestrians) per task
+    "town01": {"empty": (0, 0), "regular": (20, 50), "dense": (100, 250)},
+    "town02": {"empty": (0, 0), "regular": (15, 50), "dense": (70, 150)},
+}
 GOAL_DISTANCE_M = 2.0
+
+
+def nocrash_timeout_s(length_m: float) -> float:
+    """NoCrash timeout: the route at 5 km/h plus 20 s."""
+    return length_m / 1000.0 / 5.0 * 3600.0 + 20.0
 
 
 @dataclass(frozen=True)
@@ -46,6 +64,8 @@ class EpisodeSpec:
     timeout_s: float
     vehicles: int = 0
     pedestrians: int = 0
+    end_on_collision: bool = False
+    """NoCrash: a collision above CoRL2017's intensity threshold ends the episode as a failure."""
 
     @property
     def id(self) -> str:
@@ -116,6 +136,31 @@ def corl_suite(conditions: tuple[str, ...] | None = None, tasks: tuple[str, ...]
     return specs
 
 
+def nocrash_suite(conditions: tuple[str, ...] | None = None, tasks: tuple[str, ...] | None = None,
+                  weathers: tuple[int, ...] | None = None) -> list[EpisodeSpec]:
+    """NoCrash: 3 traffic levels x CoRL2017's 25 navigation pose pairs x the weathers of each condition."""
+    specs = []
+    for cond in conditions or tuple(NOCRASH_CONDITIONS):
+        town_name, cond_weathers = NOCRASH_CONDITIONS[cond]
+        town = load_town(town_name)
+        net = RoadNetwork(town)
+        poses = town.corl2017_poses["navigation"]
+        lengths = [net.route(tuple(float(v) for v in town.spawn_poses[a]),
+                             tuple(float(v) for v in town.spawn_poses[b])).length_m for a, b in poses]
+        for task in tasks or NOCRASH_TASKS:
+            vehicles, pedestrians = NOCRASH_TRAFFIC[town_name][task]
+            for w in cond_weathers:
+                if weathers is not None and w not in weathers:
+                    continue
+                for i, ((a, b), length) in enumerate(zip(poses, lengths, strict=True)):
+                    start = tuple(float(v) for v in town.spawn_poses[a])
+                    goal = tuple(float(v) for v in town.spawn_poses[b])
+                    specs.append(EpisodeSpec("nocrash", cond, task, town.name, int(w), i, start, goal,  # type: ignore[arg-type]
+                                             round(length, 3), nocrash_timeout_s(length), vehicles, pedestrians,
+                                             end_on_collision=True))
+    return specs
+
+
 def build_suite(suite: str, conditions: str | None = None, tasks: str | None = None,
                 weathers: str | None = None) -> list[EpisodeSpec]:
     """Episode list of a suite, filtered by comma-separated conditions, tasks and weathers (ids or names)."""
@@ -130,9 +175,12 @@ def build_suite(suite: str, conditions: str | None = None, tasks: str | None = N
             specs = paper_suite(wl, towns, suite)
             return [s for s in specs if kinds is None or s.task in kinds]
         return paper_suite(wl, suite=suite)
-    conds = _parse_list(conditions, tuple(CORL_CONDITIONS), "condition")
-    task_list = _parse_list(tasks, CORL_TASKS, "task")
-    specs = corl_suite(conds, task_list, wl)
+    if suite == "nocrash":
+        conds = _parse_list(conditions, tuple(NOCRASH_CONDITIONS), "condition")
+        specs = nocrash_suite(conds, _parse_list(tasks, NOCRASH_TASKS, "task"), wl)
+    else:
+        conds = _parse_list(conditions, tuple(CORL_CONDITIONS), "condition")
+        specs = corl_suite(conds, _parse_list(tasks, CORL_TASKS, "task"), wl)
     if not specs:
         raise BrlInputError("the chosen conditions, tasks and weathers select no episode")
     return specs

@@ -22,7 +22,7 @@ from brlcli.report.published import CORL_CONDITIONS
 
 FORMATS: tuple[str, ...] = ("md", "tex", "csv", "html")
 """Output formats: report.md (+ PNGs), tables/*.tex, tables/*.csv, report.html (self-contained)."""
-REPORTED_SUITES: tuple[str, ...] = ("paper", "validation", "corl2017")
+REPORTED_SUITES: tuple[str, ...] = ("paper", "validation", "corl2017", "nocrash")
 FRAME_KEYS = ("intersection_offroad", "intersection_otherlane")
 
 
@@ -146,6 +146,22 @@ def _corl_section(episodes: list[dict[str, Any]], summary: list[dict[str, Any]])
     return section
 
 
+def _nocrash_section(episodes: list[dict[str, Any]], summary: list[dict[str, Any]]) -> tb.Section:
+    agents = tb.corl_agents(episodes)
+    text = (f"{len(episodes)} episodes of {len(agents)} agent{'s' if len(agents) != 1 else ''} (Codevilla et al., "
+            "ICCV 2019: CoRL2017's navigation routes with three traffic levels; a collision ends the episode). "
+            "Definitions in docs/benchmarks.md.")
+    section = tb.Section("NoCrash benchmark", text, [tb.nocrash_success_table(episodes),
+                                                     tb.nocrash_outcome_table(episodes)])
+    for setting, policy in agents:
+        eps = [ep for ep in episodes if ep["setting"] == setting and ep["policy"] == policy]
+        summary.append({"suite": "nocrash", "setting": setting, "agent": policy, "episodes": len(eps),
+                        "success": float(np.mean([bool(ep["success"]) for ep in eps])),
+                        "collision_free": float(np.mean([not bool(ep.get("collided", False)) for ep in eps])),
+                        "either": float("nan"), "km": float(sum(float(ep["km"]) for ep in eps))})
+    return section
+
+
 def _training_section(runs: list[TrainingRun], images: dict[str, Callable[[], bytes]], plots: bool) -> tb.Section:
     marks = tb.run_marks(runs)
     inputs = sorted({r.group for r in runs})
@@ -180,6 +196,8 @@ def assemble(results: Results, runs: list[TrainingRun], plots: bool, curves: lis
         sections.append(_corl_section(results.of_suite("corl2017"), summary))
     else:
         notes.append("No CoRL2017 results in the inputs: its tables are not reported.")
+    if "nocrash" in suites:
+        sections.append(_nocrash_section(results.of_suite("nocrash"), summary))
     for suite in suites:
         if suite not in REPORTED_SUITES:
             notes.append(f"Results of suite '{suite}' are not reported (no tables for it yet).")

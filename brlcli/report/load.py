@@ -27,6 +27,7 @@ COMMON_KEYS: tuple[str, ...] = ("suite", "condition", "task", "town", "weather",
 SUITE_KEYS: dict[str, tuple[str, ...]] = {
     "paper": ("collided", "offroad_steps", "otherlane_steps", "either_steps"),
     "corl2017": ("infractions",),
+    "nocrash": ("collided",),
 }
 SUITE_KEYS["validation"] = SUITE_KEYS["paper"]  # the paper's suite on other routes
 """Further keys the tables of a suite need."""

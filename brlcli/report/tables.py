@@ -519,3 +519,61 @@ def training_table(runs: Sequence[TrainingRun], marks: RunMarks) -> Table:
     if any(r.evaluation is None for r in runs):
         t.notes.append(f"{DASH}: the run has no final evaluation (summary.json) yet.")
     return t
+
+
+# --------------------------------------------------------------------------------------------------------------
+# NoCrash
+
+NOCRASH_TASKS: tuple[tuple[str, str], ...] = (("empty", "Empty"), ("regular", "Regular"), ("dense", "Dense"))
+"""NoCrash traffic levels (result key, row title)."""
+
+
+def nocrash_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
+    """% success per traffic level x condition per agent, pooled over weathers, with its Beta posterior."""
+    cond_keys = [c for c, _ in pub.CORL_CONDITIONS]
+    t = Table("nocrash_success", "NoCrash: % success per traffic level and condition (Beta posterior, 95 %)",
+              ["Traffic", "Agent", *(title for _, title in pub.CORL_CONDITIONS)], label_columns=2)
+    groups: dict[tuple[str, str, str, str], list[dict[str, Any]]] = defaultdict(list)
+    for ep in episodes:
+        groups[(str(ep["setting"]), str(ep["policy"]), str(ep["task"]), str(ep["condition"]))].append(ep)
+    agents = corl_agents(episodes)
+    for task, task_title in NOCRASH_TASKS:
+        t.group()
+        for setting, policy in agents:
+            cells = []
+            for cond in cond_keys:
+                eps = groups.get((setting, policy, task, cond), [])
+                if not eps:
+                    cells.append(EMPTY)
+                    continue
+                ok = sum(bool(ep["success"]) for ep in eps)
+                s = posterior_summary(ok, len(eps) - ok)
+                cells.append(Cell(f"{100.0 * ok / len(eps):.1f} [{100.0 * s['lo']:.1f}, {100.0 * s['hi']:.1f}] "
+                                  f"(n={len(eps)})", f"{100.0 * ok / len(eps):.4f}"))
+            t.add([Cell.of(task_title), Cell.of(_agent_label(policy, setting)), *cells])
+    t.notes = ["% success: episodes that reached the goal within 2 m before the timeout (the route at 5 km/h + 20 s) "
+               "without a collision, pooled over the weathers of the condition; a collision above CoRL2017's "
+               "intensity threshold ends the episode as a failure. In brackets: the 95 % equal-tailed interval of "
+               "the Beta posterior with the Jeffreys prior; n = episodes. " + DASH + ": not run."]
+    return t
+
+
+def nocrash_outcome_table(episodes: Sequence[dict[str, Any]]) -> Table:
+    """Per agent and traffic level: the shares of episodes that succeeded, crashed and timed out."""
+    t = Table("nocrash_outcomes", "NoCrash: how episodes ended, pooled over conditions",
+              ["Traffic", "Agent", "Episodes", "Success [%]", "Collision [%]", "Timeout [%]"], label_columns=2)
+    agents = corl_agents(episodes)
+    for task, task_title in NOCRASH_TASKS:
+        t.group()
+        for setting, policy in agents:
+            eps = [ep for ep in episodes if ep["setting"] == setting and ep["policy"] == policy
+                   and ep["task"] == task]
+            if not eps:
+                continue
+            n = len(eps)
+            ok = sum(bool(ep["success"]) for ep in eps)
+            crashed = sum(bool(ep.get("crashed", False)) for ep in eps)
+            t.add([Cell.of(task_title), Cell.of(_agent_label(policy, setting)), count(n), pct(ok / n),
+                   pct(crashed / n), pct((n - ok - crashed) / n)])
+    t.notes = ["Collision: the episode ended at a collision; timeout: it neither reached the goal nor collided."]
+    return t

@@ -174,12 +174,20 @@ class Traffic:
         obs_half = np.concatenate([np.full(self.n_vehicles + 1, LENGTH_M / 2),
                                    np.full(self.n_pedestrians, PEDESTRIAN_SIZE_M[0] / 2)])
         c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-        rel = obs[None, :, :] - pose[:, None, :2]  # (V, O, 2)
-        fwd = rel[..., 0] * c[:, None] + rel[..., 1] * s[:, None]
-        lat = -rel[..., 0] * s[:, None] + rel[..., 1] * c[:, None]
+        dx = obs[None, :, 0] - pose[:, None, 0]  # (V, O)
+        dy = obs[None, :, 1] - pose[:, None, 1]
+        # only pairs within the look-ahead box can be ahead (|fwd| < LOOKAHEAD_M and |lat| < the corridor), so the
+        # rotation runs on those pairs alone: Dense traffic (100 vehicles, 250 pedestrians) has 35,100 pairs
+        reach = LOOKAHEAD_M + LANE_HALF_CORRIDOR_M
+        near = (np.abs(dx) < reach) & (np.abs(dy) < reach)
+        near[np.arange(self.n_vehicles), np.arange(self.n_vehicles)] = False
+        vi, oi = np.nonzero(near)
+        rx, ry = dx[vi, oi], dy[vi, oi]
+        fwd = rx * c[vi] + ry * s[vi]
+        lat = -rx * s[vi] + ry * c[vi]
         ahead = (fwd > 0.1) & (fwd < LOOKAHEAD_M) & (np.abs(lat) < LANE_HALF_CORRIDOR_M)
-        ahead[np.arange(self.n_vehicles), np.arange(self.n_vehicles)] = False
-        gap = np.where(ahead, fwd - LENGTH_M / 2 - obs_half[None, :], np.inf).min(axis=1)
+        gap = np.full(self.n_vehicles, np.inf)
+        np.minimum.at(gap, vi[ahead], fwd[ahead] - LENGTH_M / 2 - obs_half[oi[ahead]])
         cruise = np.where(self._is_connector[self.v_path], 0.5 * self.v_cruise, self.v_cruise)
         desired = np.clip((gap - STANDSTILL_GAP_M) / HEADWAY_S, 0.0, cruise)
         self.v_speed += np.clip(desired - self.v_speed, -7.0 * dt_s, 2.5 * dt_s)
