@@ -189,16 +189,17 @@ STOP_ACTION = Control(steer=0.0, throttle=0.0, brake=1.0)
 class OraclePolicy(AutopilotPolicy):
     """The privileged expert restricted to the BRL agent's action primitives (its steering quantised to forward,
     right or left: the nearest of 0 and +-`turn_steer`) and to a decision every `decision_frames` frames: whether
-    the agent's action set can drive a route at all (issue 20's feasibility check). `backward` is never chosen (as a
-    brake it does worse: docs/navigation-study.md) and the paper's primitives cannot brake, so the oracle does not
-    stop for traffic unless `stop_action` adds a fifth primitive, `stop` (no throttle, full brake; outside the
-    paper), taken whenever the expert brakes."""
+    the agent's action set can drive a route at all (issue 20's feasibility check). The paper's primitives cannot
+    brake, so the oracle does not stop for traffic unless `backward_brake` takes `backward` (reverse throttle) while
+    the expert brakes and the car rolls forward, or `stop_action` adds a fifth primitive, `stop` (no throttle, full
+    brake; outside the paper), taken whenever the expert brakes (both measured in docs/navigation-study.md)."""
 
     setting = "oracle"
     needs_camera = False
 
     def __init__(self, name: str = "oracle", decision_frames: int = FRAMES_PER_DECISION,
-                 turn_steer: float = float(ACTIONS[1].steer), stop_action: bool = False) -> None:
+                 turn_steer: float = float(ACTIONS[1].steer), stop_action: bool = False,
+                 backward_brake: bool = False) -> None:
         super().__init__(name)
         if isinstance(decision_frames, bool) or not isinstance(decision_frames, int) or decision_frames < 1:
             raise BrlInputError(f"oracle decision_frames must be a positive integer, got {decision_frames!r}")
@@ -210,12 +211,16 @@ class OraclePolicy(AutopilotPolicy):
                             Control(steer=-turn_steer, throttle=left.throttle))
         self._steers = np.array([0.0, turn_steer, -turn_steer])
         self._stop_action = bool(stop_action)
+        self._backward_brake = bool(backward_brake)
 
     def decide(self, obs: Observation) -> Control:
-        """`stop` when the expert brakes (if enabled), else the primitive whose steering is nearest the expert's."""
+        """`stop` or `backward` when the expert brakes (if enabled), else the primitive whose steering is nearest the
+        expert's."""
         expert = self._pilot.expert(obs.measurements)
         if self._stop_action and expert.brake > 0.0:
             return STOP_ACTION
+        if self._backward_brake and expert.brake > 0.0 and obs.measurements.forward_speed_kmh > 0.0:
+            return ACTIONS[3]
         return self._primitives[int(np.argmin(np.abs(self._steers - expert.steer)))]
 
 

@@ -191,6 +191,11 @@ def test_oracle_quantises_the_experts_steering_and_stops_only_with_the_stop_acti
     expert["control"] = Control(steer=-0.35, throttle=0.0, brake=1.0)
     assert plain.decide(obs) == ACTIONS[2]  # the paper's primitives cannot brake: left
     assert stopping.decide(obs) == STOP_ACTION and stopping.frames_per_decision == 3
+    braking = OraclePolicy(backward_brake=True)
+    braking._pilot = pilot
+    rolling = Observation(rgb=None, labels=None, measurements=SimpleNamespace(forward_speed_kmh=8.0), command=2)
+    standing = Observation(rgb=None, labels=None, measurements=SimpleNamespace(forward_speed_kmh=0.0), command=2)
+    assert braking.decide(rolling) == ACTIONS[3] and braking.decide(standing) == ACTIONS[2]
 
 
 def test_nocrash_suite_definition() -> None:
