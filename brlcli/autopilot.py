@@ -84,6 +84,11 @@ class Autopilot:
         ahead = (fwd > 0) & (fwd < 25.0) & (np.abs(lat) < 1.8)
         return float((fwd[ahead] - 2.25 - boxes[ahead, 4] / 2).min()) if ahead.any() else math.inf
 
+    def must_stop(self, m: Measurements) -> bool:
+        """Whether the expert wants to stand still: the route's end, or an obstacle closer than STOP_GAP_M ahead."""
+        s, _ = self.route.project(m.x, m.y)
+        return self._target_speed(s) <= 0.0 or self._obstacle_gap(m) < STOP_GAP_M
+
     def expert(self, m: Measurements, offset_m: float = 0.0, speed_kmh: float | None = None) -> Control:
         """Clean expert control for the current measurements (along a path `offset_m` right of the route, at most
         `speed_kmh`, during an excursion)."""

@@ -184,6 +184,9 @@ class AutopilotPolicy:
 
 STOP_ACTION = Control(steer=0.0, throttle=0.0, brake=1.0)
 """A fifth action primitive outside the paper (issue 20's feasibility check): stand still or brake."""
+ORACLE_STOPS = ("never", "braking", "standstill")
+"""When the oracle takes STOP_ACTION: never (the paper's actions), whenever the expert brakes, or only when the
+expert wants to stand still (an obstacle ahead, the goal)."""
 
 
 class OraclePolicy(AutopilotPolicy):
@@ -191,14 +194,15 @@ class OraclePolicy(AutopilotPolicy):
     right or left: the nearest of 0 and +-`turn_steer`) and to a decision every `decision_frames` frames: whether
     the agent's action set can drive a route at all (issue 20's feasibility check). The paper's primitives cannot
     brake, so the oracle does not stop for traffic unless `backward_brake` takes `backward` (reverse throttle) while
-    the expert brakes and the car rolls forward, or `stop_action` adds a fifth primitive, `stop` (no throttle, full
-    brake; outside the paper), taken whenever the expert brakes (both measured in docs/navigation-study.md)."""
+    the expert brakes and the car rolls forward, or `stop` adds a fifth primitive (no throttle, full brake; outside
+    the paper), taken whenever the expert brakes (`stop="braking"`) or only when it wants to stand still, for an
+    obstacle or at the goal (`stop="standstill"`); all measured in docs/navigation-study.md."""
 
     setting = "oracle"
     needs_camera = False
 
     def __init__(self, name: str = "oracle", decision_frames: int = FRAMES_PER_DECISION,
-                 turn_steer: float = float(ACTIONS[1].steer), stop_action: bool = False,
+                 turn_steer: float = float(ACTIONS[1].steer), stop: str = "never",
                  backward_brake: bool = False) -> None:
         super().__init__(name)
         if isinstance(decision_frames, bool) or not isinstance(decision_frames, int) or decision_frames < 1:
@@ -210,14 +214,17 @@ class OraclePolicy(AutopilotPolicy):
         self._primitives = (forward, Control(steer=turn_steer, throttle=right.throttle),
                             Control(steer=-turn_steer, throttle=left.throttle))
         self._steers = np.array([0.0, turn_steer, -turn_steer])
-        self._stop_action = bool(stop_action)
+        if stop not in ORACLE_STOPS:
+            raise BrlInputError(f"oracle stop must be one of {', '.join(ORACLE_STOPS)}, got {stop!r}")
+        self._stop = stop
         self._backward_brake = bool(backward_brake)
 
     def decide(self, obs: Observation) -> Control:
         """`stop` or `backward` when the expert brakes (if enabled), else the primitive whose steering is nearest the
         expert's."""
         expert = self._pilot.expert(obs.measurements)
-        if self._stop_action and expert.brake > 0.0:
+        if (self._stop == "braking" and expert.brake > 0.0) or \
+                (self._stop == "standstill" and self._pilot.must_stop(obs.measurements)):
             return STOP_ACTION
         if self._backward_brake and expert.brake > 0.0 and obs.measurements.forward_speed_kmh > 0.0:
             return ACTIONS[3]

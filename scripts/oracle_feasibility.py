@@ -2,7 +2,7 @@
 --agent oracle`) with a changed decision rate or a fifth `stop` primitive, on a CoRL2017 subset.
 
     python scripts/oracle_feasibility.py --decision-frames 3 --episodes 0.2 --out runs/issue20/corl20_oracle_f3
-    python scripts/oracle_feasibility.py --stop-action --episodes 0.2 --out runs/issue20/corl20_oracle_stop
+    python scripts/oracle_feasibility.py --stop braking --episodes 0.2 --out runs/issue20/corl20_oracle_stop
     python scripts/oracle_feasibility.py --backward-brake --episodes 0.2 --out runs/issue20/corl20_oracle_brake
 
 The output is a `brl bench` results directory (`brl report` reads it); `--tasks` restricts the tasks.
@@ -23,16 +23,16 @@ def main() -> None:
     """Run one oracle variant on CoRL2017 and write its results."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--decision-frames", type=int, default=FRAMES_PER_DECISION, help="frames between decisions")
-    ap.add_argument("--stop-action", action="store_true", help="add the fifth primitive `stop` (outside the paper)")
+    ap.add_argument("--stop", choices=("never", "braking", "standstill"), default="never",
+                    help="when to take a fifth primitive `stop` (outside the paper)")
     ap.add_argument("--backward-brake", action="store_true", help="take `backward` to brake while rolling forward")
     ap.add_argument("--episodes", default="0.2", help="deterministic CoRL2017 subset (as brl bench --episodes)")
     ap.add_argument("--tasks", default=None, help="comma-separated CoRL2017 tasks (default: all four)")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
-    options = {"decision_frames": args.decision_frames, "stop_action": args.stop_action,
-               "backward_brake": args.backward_brake}
-    name = (f"oracle-f{args.decision_frames}{'-stop' if args.stop_action else ''}"
+    options = {"decision_frames": args.decision_frames, "stop": args.stop, "backward_brake": args.backward_brake}
+    name = (f"oracle-f{args.decision_frames}{'' if args.stop == 'never' else '-stop-' + args.stop}"
             f"{'-backward-brake' if args.backward_brake else ''}")
     specs = subset(build_suite("corl2017", None, args.tasks, None), args.episodes)
     config = {"suite": "corl2017", "suite_version": suite_version("corl2017"), "town_versions": town_versions(specs),

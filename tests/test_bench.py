@@ -168,7 +168,7 @@ def test_oracle_drives_a_junction_with_the_agents_primitives(tmp_path: Path) -> 
     assert rows[0]["success"] and rows[0]["setting"] == "oracle"
     oracle = OraclePolicy()
     assert oracle.frames_per_decision == 7 and set(oracle._primitives) == set(ACTIONS[:3])
-    for bad in ({"decision_frames": 0}, {"turn_steer": 1.5}):
+    for bad in ({"decision_frames": 0}, {"turn_steer": 1.5}, {"stop": "always"}):
         with pytest.raises(BrlInputError, match="oracle"):
             OraclePolicy(**bad)
 
@@ -183,7 +183,7 @@ def test_oracle_quantises_the_experts_steering_and_stops_only_with_the_stop_acti
     expert = {"control": Control(steer=0.3, throttle=0.4)}
     pilot = SimpleNamespace(expert=lambda m: expert["control"])
     obs = Observation(rgb=None, labels=None, measurements=None, command=2)
-    plain, stopping = OraclePolicy(), OraclePolicy(stop_action=True, decision_frames=3)
+    plain, stopping = OraclePolicy(), OraclePolicy(stop="braking", decision_frames=3)
     plain._pilot = stopping._pilot = pilot
     assert plain.decide(obs) == ACTIONS[1] and stopping.decide(obs) == ACTIONS[1]  # 0.3 is nearest +0.4: right
     expert["control"] = Control(steer=-0.1, throttle=0.2)
@@ -196,6 +196,12 @@ def test_oracle_quantises_the_experts_steering_and_stops_only_with_the_stop_acti
     rolling = Observation(rgb=None, labels=None, measurements=SimpleNamespace(forward_speed_kmh=8.0), command=2)
     standing = Observation(rgb=None, labels=None, measurements=SimpleNamespace(forward_speed_kmh=0.0), command=2)
     assert braking.decide(rolling) == ACTIONS[3] and braking.decide(standing) == ACTIONS[2]
+    still = OraclePolicy(stop="standstill")
+    wants = {"stop": False}
+    still._pilot = SimpleNamespace(expert=pilot.expert, must_stop=lambda m: wants["stop"])
+    assert still.decide(obs) == ACTIONS[2]  # braking to slow down (for a turn): keep steering
+    wants["stop"] = True
+    assert still.decide(obs) == STOP_ACTION
 
 
 def test_nocrash_suite_definition() -> None:
