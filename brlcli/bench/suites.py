@@ -144,17 +144,15 @@ def nocrash_suite(conditions: tuple[str, ...] | None = None, tasks: tuple[str, .
         town_name, cond_weathers = NOCRASH_CONDITIONS[cond]
         town = load_town(town_name)
         net = RoadNetwork(town)
-        poses = town.corl2017_poses["navigation"]
-        lengths = [net.route(tuple(float(v) for v in town.spawn_poses[a]),
-                             tuple(float(v) for v in town.spawn_poses[b])).length_m for a, b in poses]
+        pairs = [(tuple(float(v) for v in town.spawn_poses[a]), tuple(float(v) for v in town.spawn_poses[b]))
+                 for a, b in town.corl2017_poses["navigation"]]
+        lengths = [net.route(start, goal).length_m for start, goal in pairs]
         for task in tasks or NOCRASH_TASKS:
             vehicles, pedestrians = NOCRASH_TRAFFIC[town_name][task]
             for w in cond_weathers:
                 if weathers is not None and w not in weathers:
                     continue
-                for i, ((a, b), length) in enumerate(zip(poses, lengths, strict=True)):
-                    start = tuple(float(v) for v in town.spawn_poses[a])
-                    goal = tuple(float(v) for v in town.spawn_poses[b])
+                for i, ((start, goal), length) in enumerate(zip(pairs, lengths, strict=True)):
                     specs.append(EpisodeSpec("nocrash", cond, task, town.name, int(w), i, start, goal,  # type: ignore[arg-type]
                                              round(length, 3), nocrash_timeout_s(length), vehicles, pedestrians,
                                              end_on_collision=True))
