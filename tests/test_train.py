@@ -32,8 +32,10 @@ def test_same_seed_gives_identical_log_and_model(tmp_path: Path) -> None:
     assert cfg_saved["config"]["seed"] == 4 and "git_commit" in cfg_saved and "brl_version" in cfg_saved
 
 
-def test_interrupted_run_resumes_bit_identical(tmp_path: Path) -> None:
-    cfg = TrainConfig(steps=150, seed=1, evaluate=False)
+@pytest.mark.parametrize("params", [{}, {"step_size": "action-visits", "exploration": "posterior"}])
+def test_interrupted_run_resumes_bit_identical(tmp_path: Path, params: dict) -> None:
+    """Also with per-episode posterior draws: they come from the run's generator after each reset."""
+    cfg = TrainConfig(steps=150, seed=1, evaluate=False, params={**TrainConfig().params, **params})
     train_run(cfg, tmp_path / "full")
 
     class Stop(Exception):
@@ -52,27 +54,13 @@ def test_interrupted_run_resumes_bit_identical(tmp_path: Path) -> None:
     assert _files(tmp_path / "cut") == _files(tmp_path / "full")
 
 
-def test_posterior_exploration_run_resumes_bit_identical(tmp_path: Path) -> None:
-    """Per-episode draws come from the run's generator after the reset, so a resumed run repeats them exactly."""
-    params = {"step_size": "action-visits", "exploration": "posterior"}
-    cfg = TrainConfig(steps=120, seed=3, evaluate=False, params=params)
-    train_run(cfg, tmp_path / "full")
-
-    class Stop(Exception):
-        pass
-
-    def kill_at_80(p) -> None:
-        if p.step >= 80:
-            raise Stop
-
-    with pytest.raises(Stop):
-        train_run(cfg, tmp_path / "cut", progress=kill_at_80)
-    train_run(cfg, tmp_path / "cut", resume=True)
-    assert _files(tmp_path / "cut") == _files(tmp_path / "full")
-    plain = TrainConfig(steps=120, seed=3, evaluate=False, params={"step_size": "action-visits"})
-    train_run(plain, tmp_path / "plain")
-    assert _files(tmp_path / "plain")[0] != _files(tmp_path / "full")[0]  # the draws change the actions taken
-    assert BayesianAgent.load(tmp_path / "full" / "model.npz").visits.sum() > 0
+def test_posterior_draws_change_the_actions_and_counts_are_stored(tmp_path: Path) -> None:
+    base = {"step_size": "action-visits"}
+    train_run(TrainConfig(steps=120, seed=3, evaluate=False, params={**base, "exploration": "posterior"}),
+              tmp_path / "posterior")
+    train_run(TrainConfig(steps=120, seed=3, evaluate=False, params=base), tmp_path / "plain")
+    assert _files(tmp_path / "plain")[0] != _files(tmp_path / "posterior")[0]  # the draws change the actions taken
+    assert BayesianAgent.load(tmp_path / "posterior" / "model.npz").visits.sum() > 0
 
 
 def test_model_set_does_not_depend_on_worker_count(tmp_path: Path) -> None:

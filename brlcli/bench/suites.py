@@ -140,20 +140,22 @@ def nocrash_suite(conditions: tuple[str, ...] | None = None, tasks: tuple[str, .
                   weathers: tuple[int, ...] | None = None) -> list[EpisodeSpec]:
     """NoCrash: 3 traffic levels x CoRL2017's 25 navigation pose pairs x the weathers of each condition."""
     specs = []
+    routes: dict[str, list[tuple[tuple, tuple, float]]] = {}  # town -> (start, goal, length) of its pose pairs
     for cond in conditions or tuple(NOCRASH_CONDITIONS):
         town_name, cond_weathers = NOCRASH_CONDITIONS[cond]
-        town = load_town(town_name)
-        net = RoadNetwork(town)
-        pairs = [(tuple(float(v) for v in town.spawn_poses[a]), tuple(float(v) for v in town.spawn_poses[b]))
-                 for a, b in town.corl2017_poses["navigation"]]
-        lengths = [net.route(start, goal).length_m for start, goal in pairs]
+        if town_name not in routes:
+            town = load_town(town_name)
+            net = RoadNetwork(town)
+            pairs = [(tuple(float(v) for v in town.spawn_poses[a]), tuple(float(v) for v in town.spawn_poses[b]))
+                     for a, b in town.corl2017_poses["navigation"]]
+            routes[town_name] = [(start, goal, net.route(start, goal).length_m) for start, goal in pairs]
         for task in tasks or NOCRASH_TASKS:
             vehicles, pedestrians = NOCRASH_TRAFFIC[town_name][task]
             for w in cond_weathers:
                 if weathers is not None and w not in weathers:
                     continue
-                for i, ((start, goal), length) in enumerate(zip(pairs, lengths, strict=True)):
-                    specs.append(EpisodeSpec("nocrash", cond, task, town.name, int(w), i, start, goal,  # type: ignore[arg-type]
+                for i, (start, goal, length) in enumerate(routes[town_name]):
+                    specs.append(EpisodeSpec("nocrash", cond, task, town_name, int(w), i, start, goal,  # type: ignore[arg-type]
                                              round(length, 3), nocrash_timeout_s(length), vehicles, pedestrians,
                                              end_on_collision=True))
     return specs

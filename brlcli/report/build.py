@@ -135,15 +135,21 @@ def _corl_section(episodes: list[dict[str, Any]], summary: list[dict[str, Any]])
             f"{', '.join(conds)}. Tables follow "
             "CARLA's Table 1 (% success) and the paper's Town02 table (km between infractions).")
     section = tb.Section("CoRL2017 benchmark", text, [tb.corl_success_table(episodes), tb.corl_km_table(episodes)])
+    _agent_summaries("corl2017", episodes, agents, summary)
+    return section
+
+
+def _agent_summaries(suite: str, episodes: list[dict[str, Any]], agents: list[tuple[str, str]],
+                     summary: list[dict[str, Any]]) -> None:
+    """One terminal-summary row per (setting, policy) of a route suite (CoRL2017, NoCrash)."""
     for setting, policy in agents:
         eps = [ep for ep in episodes if ep["setting"] == setting and ep["policy"] == policy]
         steps = sum(int(ep["steps"]) for ep in eps)
         either = (sum(int(ep.get("either_steps", 0)) for ep in eps) / steps) if steps else float("nan")
-        summary.append({"suite": "corl2017", "setting": setting, "agent": policy, "episodes": len(eps),
+        summary.append({"suite": suite, "setting": setting, "agent": policy, "episodes": len(eps),
                         "success": float(np.mean([bool(ep["success"]) for ep in eps])),
                         "collision_free": float(np.mean([not bool(ep.get("collided", False)) for ep in eps])),
                         "either": either, "km": float(sum(float(ep["km"]) for ep in eps))})
-    return section
 
 
 def _nocrash_section(episodes: list[dict[str, Any]], summary: list[dict[str, Any]]) -> tb.Section:
@@ -153,12 +159,7 @@ def _nocrash_section(episodes: list[dict[str, Any]], summary: list[dict[str, Any
             "Definitions in docs/benchmarks.md.")
     section = tb.Section("NoCrash benchmark", text, [tb.nocrash_success_table(episodes),
                                                      tb.nocrash_outcome_table(episodes)])
-    for setting, policy in agents:
-        eps = [ep for ep in episodes if ep["setting"] == setting and ep["policy"] == policy]
-        summary.append({"suite": "nocrash", "setting": setting, "agent": policy, "episodes": len(eps),
-                        "success": float(np.mean([bool(ep["success"]) for ep in eps])),
-                        "collision_free": float(np.mean([not bool(ep.get("collided", False)) for ep in eps])),
-                        "either": float("nan"), "km": float(sum(float(ep["km"]) for ep in eps))})
+    _agent_summaries("nocrash", episodes, agents, summary)
     return section
 
 
