@@ -114,6 +114,8 @@ def _with_segnet(cfg: Any) -> Any:
 
 @app.command()
 def train(
+    task: Annotated[str | None, typer.Option(help="lane-keeping (the paper's) or navigation (route commands at "
+                                                  "junctions; outside the paper) [default: lane-keeping].")] = None,
     town: Annotated[str | None, typer.Option(help="Town to train in [default: town01].")] = None,
     weather: Annotated[str | None, typer.Option(help="Weather id or name (the paper trains in 1, ClearNoon) "
                                                      "[default: 1].")] = None,
@@ -162,9 +164,9 @@ def train(
     seed_list = parse_seeds(seeds) if seeds is not None else [seed]
     if resume and out is None:
         raise_input("--resume continues a run: give its --out")
-    options = {"town": town, "weather": None if weather is None else get_weather(weather).id, "input": input,
-               "steps": steps, "variant": variant, "target_speed_kmh": target_speed_kmh, "evaluate": evaluate,
-               "segnet": segnet, "curve_every": curve_every}
+    options = {"task": task, "town": town, "weather": None if weather is None else get_weather(weather).id,
+               "input": input, "steps": steps, "variant": variant, "target_speed_kmh": target_speed_kmh,
+               "evaluate": evaluate, "segnet": segnet, "curve_every": curve_every}
     layers = [read_config_file(config) if config is not None else {},
               {k: v for k, v in options.items() if v is not None}, parse_sets(set_ or [])]
     for layer, where in zip(layers, ("--config", "options", "--set"), strict=True):
@@ -220,7 +222,10 @@ def train_summary_line(s: dict) -> str:
     if s.get("restarts"):
         line += f" ({len(s['restarts'])} restart{'s' if len(s['restarts']) > 1 else ''})"
     ev = s.get("eval")
-    if ev:
+    if ev and ev.get("suite") == "nav_validation":
+        line += (f", navigation success {ev['success_rate']:.0%}  Either {ev['either_share']:.1%}  "
+                 f"Score {ev['score']:.2f} (nav_validation suite)")
+    elif ev:
         line += (f", lane-keeping success {ev['success_rate']:.0%}  Either {ev['either_share']:.1%}  "
                  f"Score {ev['score']:.2f} ({ev['town']} {ev.get('routes', 'lane_keeping')} routes)")
     return line
@@ -452,7 +457,7 @@ def bench(
     from brlcli.bench.runner import find_models, prepare, run_bench, suite_version, town_versions
     from brlcli.bench.suites import build_suite, parse_shard, subset
     from brlcli.bench.suites import shard as take_shard
-    from brlcli.policy import PolicySpec, baseline_specs, build_policy, model_variant
+    from brlcli.policy import PolicySpec, baseline_specs, build_policy, check_suite_task, model_variant
 
     ex = _executor(executor, workers, ray_address)
     k, n = parse_shard(shard)
@@ -467,6 +472,8 @@ def bench(
             raise_input(f"--models is for brl model sets; give --agent {agent} one --model")
         pols = [PolicySpec(agent, name, opts) for name, opts in baseline_specs(agent, model, deploy, segnet)]
     for p in pols:  # load every model once here: a bad file fails before anything is written
+        if p.kind == "brl":
+            check_suite_task(suite, Path(p.options["model"]))
         build_policy(p.kind, p.name, p.options)
     if deploy == "estimated" and agent in ("brl", "mp", "dqn"):
         _segnet_notice(segnet)
@@ -814,13 +821,16 @@ def train_il(
 @app.command("train-rl")
 def train_rl(
     algo: Annotated[str, typer.Option(help="Deep RL algorithm (Stable-Baselines3): dqn.")] = "dqn",
+    task: Annotated[str, typer.Option(help="lane-keeping or navigation (brl train's tasks; navigation adds the "
+                                           "one-hot route command to the state).")] = "lane-keeping",
     town: Annotated[str, typer.Option(help="Town to train in (the BRL agent's: town01).")] = "town01",
     weather: Annotated[str, typer.Option(help="Weather id or name.")] = "1",
     input: Annotated[str, typer.Option("--input", help="State source: gt or estimated.")] = "gt",
     steps: Annotated[int, typer.Option(help="Budget in environment steps (decisions).")] = 100_000,
     eval_every: Annotated[int, typer.Option(help="Evaluate on --eval-suite every N env steps (learning curve).")]
     = 5_000,
-    eval_suite: Annotated[str, typer.Option(help="paper (the lane-keeping test suite) or none.")] = "paper",
+    eval_suite: Annotated[str, typer.Option(help="paper (the lane-keeping test suite), nav_validation (the "
+                                                 "navigation task's) or none; auto: the task's.")] = "auto",
     seed: Annotated[int, typer.Option(help="Seed of the network, exploration and routes.")] = 0,
     out: Annotated[str | None, typer.Option("--out", help="Run directory (drl.pt, learning_curve.csv, checkpoint/; "
                                                           f"default: {FRESH_OUT.format(command='train-rl')}).")]
@@ -851,7 +861,8 @@ def train_rl(
     from brlcli.sim.weather import get_weather
     from brlcli.trainconfig import resolve_plain_config
 
-    options = {"algo": algo, "town": town, "weather": get_weather(weather).id, "input": input, "steps": steps,
+    options = {"algo": algo, "task": task, "town": town, "weather": get_weather(weather).id, "input": input,
+               "steps": steps,
                "eval_every": eval_every, "eval_suite": eval_suite, "seed": seed, "segnet": segnet}
     given = {k: v for k, v in options.items()  # typer may vendor click: compare the source by name
              if getattr(ctx.get_parameter_source(k), "name", None) == "COMMANDLINE"}

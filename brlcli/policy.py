@@ -99,6 +99,22 @@ def model_training_input(model_path: Path) -> str:
     return str(_training_config(model_path).get("input", "gt"))
 
 
+COMMANDLESS_SUITES = ("paper", "validation")
+"""Bench suites whose routes hold no junction, so no route command: a navigation model is not benched on them."""
+
+
+def model_task(model_path: Path) -> str:
+    """'lane-keeping' or 'navigation': the task of a BRL model (its config.json's `task`; lane keeping without)."""
+    return str(_training_config(model_path).get("task", "lane-keeping"))
+
+
+def check_suite_task(suite: str, model_path: Path) -> None:
+    """A one-line error when a model cannot be benched on a suite (a navigation model on a suite without commands)."""
+    if model_task(model_path) == "navigation" and suite in COMMANDLESS_SUITES:
+        raise BrlInputError(f"model {model_path} was trained for navigation (route commands); the {suite} suite is "
+                            "lane keeping without commands: bench it on --suite corl2017, nocrash or nav_validation")
+
+
 def model_variant(model_path: Path) -> str:
     """The method variant a BRL model was trained with (its config.json's `variant`; 'paper' without one)."""
     return str(_training_config(model_path).get("variant", "paper"))
@@ -118,9 +134,10 @@ class StatePolicy:
 
     frames_per_decision = FRAMES_PER_DECISION
 
-    def __init__(self, name: str, setting: str, act: Callable[[np.ndarray], int],
+    def __init__(self, name: str, setting: str, act: Callable[..., int],
                  labeler: Callable[[np.ndarray], np.ndarray] | None = None,
-                 camera: CameraConfig | None = None) -> None:
+                 camera: CameraConfig | None = None, uses_command: bool = False) -> None:
+        self.uses_command = uses_command  # act(state, command) instead of act(state)
         self.name = name
         self.setting = setting
         self.act = act
@@ -133,6 +150,8 @@ class StatePolicy:
     def decide(self, obs: Observation) -> Control:
         """The action primitive chosen on the (ground-truth or estimated) label image's state."""
         labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
+        if self.uses_command:
+            return ACTIONS[int(self.act(state_vector(labels), obs.command))]
         return ACTIONS[int(self.act(state_vector(labels)))]
 
 
@@ -142,21 +161,40 @@ def greedy_brl(agent: Any) -> Callable[[np.ndarray], int]:
     return lambda state: agent.act(np.asarray(state, dtype=np.float64), rng, greedy=True)
 
 
+def greedy_command_brl(agent: Any) -> Callable[[np.ndarray, int], int]:
+    """(state, command) -> the greedy action of the command's branch of a command-conditioned BRL agent."""
+    rng = np.random.default_rng(0)
+
+    def act(state: np.ndarray, command: int) -> int:
+        agent.set_command(command)
+        return agent.act(np.asarray(state, dtype=np.float64), rng, greedy=True)
+
+    return act
+
+
 class BRLPolicy(StatePolicy):
-    """A trained Bayesian RL model deployed greedily on GT or estimated labels (decision every 7 frames)."""
+    """A trained Bayesian RL model deployed greedily on GT or estimated labels (decision every 7 frames); a
+    command-conditioned model (task navigation) acts with the branch of the route command."""
 
     def __init__(self, name: str, model: str, deploy: str = "gt", segnet: str | None = None) -> None:
         from brlcli.agent import BayesianAgent
+        from brlcli.agent.command import CommandAgent, is_command_model
 
         check_input_source(deploy)
-        self.agent = BayesianAgent.load(model)
+        self.task = model_task(Path(model))
+        command = is_command_model(model)
+        if command != (self.task == "navigation"):
+            raise BrlInputError(f"model {model} is {'' if command else 'not '}command-conditioned but its "
+                                f"config.json says task {self.task}")
+        self.agent = CommandAgent.load(model) if command else BayesianAgent.load(model)
         if self.agent.state_dim != STATE_DIM or self.agent.n_actions != len(ACTIONS):
             raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and "
                                 f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)}")
         self.variant = model_variant(Path(model))
-        super().__init__(name, setting_name(model_training_input(Path(model)), deploy, self.variant),
-                         greedy_brl(self.agent),
-                         labeler_for(deploy, segnet), model_camera(Path(model)))
+        label = self.variant if self.task == "lane-keeping" else f"{self.variant}, navigation"
+        super().__init__(name, setting_name(model_training_input(Path(model)), deploy, label),
+                         greedy_command_brl(self.agent) if command else greedy_brl(self.agent),
+                         labeler_for(deploy, segnet), model_camera(Path(model)), uses_command=command)
 
 
 class AutopilotPolicy:

@@ -51,3 +51,30 @@ def reward_terms(collided: bool, offroad: float, otherlane: float, speed_kmh: fl
         terms["road_view"] = params.road_view_weight * (road - 1.0)
     terms["total"] = sum(terms.values())
     return terms
+
+
+@dataclass(frozen=True)
+class RouteRewardParams:
+    """Route following (issue 20, outside the paper): the terms added to the paper's reward on navigation routes.
+
+    `progress`: -r_progress * clip(1 - ds / (v_t * dt), 0, 2), ds the decision's advance along the planned route and
+    v_t * dt the advance at the target speed, so driving along the route at the target speed costs nothing and
+    standing still or driving away from it costs up to 2 r_progress. `wrong_turn`: -r_wrong_turn on the step the
+    car gets farther than `wrong_turn_m` from the route (a wrong turn at a junction), which ends the episode.
+    """
+
+    r_progress: float = 5.0
+    r_wrong_turn: float = 40.0
+    wrong_turn_m: float = 6.0
+
+    def __post_init__(self) -> None:
+        if not (self.r_progress >= 0 and self.r_wrong_turn >= 0 and self.wrong_turn_m > 0):
+            raise ValueError("r_progress and r_wrong_turn must be >= 0 and wrong_turn_m > 0, got "
+                             f"{self.r_progress}, {self.r_wrong_turn}, {self.wrong_turn_m}")
+
+
+def route_terms(progress_m: float, expected_m: float, lateral_m: float, params: RouteRewardParams) -> dict[str, float]:
+    """The route-following terms of one decision: progress (ds vs. the target speed's) and the wrong-turn penalty."""
+    shortfall = min(max(1.0 - progress_m / expected_m, 0.0), 2.0)
+    wrong = abs(lateral_m) > params.wrong_turn_m
+    return {"progress": -params.r_progress * shortfall, "wrong_turn": -params.r_wrong_turn if wrong else 0.0}

@@ -25,16 +25,18 @@ from brlcli.agent import BayesianAgent, BRLParams
 from brlcli.errors import BrlInputError
 from brlcli.executor import Executor, report, run_tasks
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
-from brlcli.reward import RewardParams
+from brlcli.reward import RewardParams, RouteRewardParams
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import ACTION_NAMES, DrivingEnv
+from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
 from brlcli.sim.weather import get_weather
 
 LOG_COLUMNS = (
     "step", "episode", "decision", "action", "reward", "r_collision", "r_offroad", "r_otherlane", "r_speed",
     "r_road_view", "td_error", "component", "created", "weight", "weight_case", "components", "alpha", "tau",
-    "rho", "forward_speed_kmh", "intersection_offroad", "intersection_otherlane", "x", "y", "attempt",
+    "rho", "forward_speed_kmh", "intersection_offroad", "intersection_otherlane", "x", "y", "attempt", "command",
+    "r_progress", "r_wrong_turn",
 )
 CHECKPOINT_VERSION = 1
 RESTART_CHECKS = (1 / 3, 2 / 3)
@@ -66,6 +68,15 @@ DEFAULT_VARIANT = "action-averaging-restart"
 by more than the standard error of the difference (docs/lane-keeping-study.md, round 11)."""
 
 
+TASK_PRESETS: dict[str, dict[str, Any]] = {
+    "lane-keeping": {},
+    "navigation": {"steps": 13500, "restart_below": None},
+}
+"""Overrides a task makes on top of the variant's preset (an option, --config or --set goes on top): navigation
+trains four branches, so three times the paper's t_max, and without the trap restart, whose reward threshold is
+the lane-keeping task's (docs/navigation-study.md)."""
+
+
 DEFAULT_AGENT_OVERRIDES: dict[str, Any] = {"init_scatter": 1e-3}
 """Agent parameters a training run sets beyond `BRLParams()` (none of them is in the paper's Table I): the NIW
 prior scatter S0 = 1e-3 I, on the scale of the 30-number state, instead of the reference code's 0.1 I
@@ -76,12 +87,13 @@ prior scatter S0 = 1e-3 I, on the scale of the 30-number state, instead of the r
 class TrainConfig:
     """Everything that determines a training run (saved as `config.json`)."""
 
+    task: str = "lane-keeping"  # or "navigation" (TASKS)
     town: str = "town01"
     weather: int = 1
     input: str = "gt"
     steps: int = 4500
     seed: int = 0
-    route_kinds: tuple[str, ...] = ("straight", "right_curve", "left_curve")
+    route_kinds: tuple[str, ...] | None = None  # the task's training routes (TASK_ROUTE_KINDS; None: all of them)
     variant: str = "paper"
     target_speed_kmh: float = 20.0
     evaluate: bool = True
@@ -100,9 +112,23 @@ class TrainConfig:
     # attempt always runs to the end
     restart_offroad_above: float | None = None  # outside the paper: ... or when the share of those steps with part of
     # the car off the road is above this (None: the reward test only; needs restart_below)
+    command_bootstrap: str = "next-branch"  # navigation only: brlcli.agent.command.BOOTSTRAPS
+    r_progress: float = 5.0  # navigation only: route-following reward terms (RouteRewardParams)
+    r_wrong_turn: float = 40.0
+    wrong_turn_m: float = 6.0
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
+        if self.task not in TASKS:
+            raise BrlInputError(f"unknown task '{self.task}'; choose one of {', '.join(TASKS)}")
+        if self.command_bootstrap not in ("next-branch", "own-branch"):
+            raise BrlInputError(f"command_bootstrap must be next-branch or own-branch, not '{self.command_bootstrap}'")
+        if self.route_kinds is None:
+            object.__setattr__(self, "route_kinds", TASK_ROUTE_KINDS[self.task])
+        bad = [k for k in self.route_kinds if k not in TASK_ROUTE_KINDS[self.task]]
+        if bad or not self.route_kinds:
+            raise BrlInputError(f"route kinds {', '.join(bad) or '(none)'} are not {self.task} routes; choose from "
+                                f"{', '.join(TASK_ROUTE_KINDS[self.task])}")
         if self.steps < 1:
             raise BrlInputError("--steps must be at least 1")
         if self.curve_every < 0:
@@ -115,6 +141,7 @@ class TrainConfig:
             raise BrlInputError(f"restart_offroad_above must lie in [0, 1], got {self.restart_offroad_above}")
         try:
             self.reward_params()
+            self.route_reward()
             self.camera()
             DrivingEnv.check_episode_rules(self.offroad_end, self.start_offset_m, self.start_yaw_deg,
                                            self.otherlane_end)
@@ -127,7 +154,7 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
         d = asdict(self)
-        d["route_kinds"] = list(self.route_kinds)
+        d["route_kinds"] = list(self.route_kinds or ())
         return d
 
     @classmethod
@@ -140,13 +167,27 @@ class TrainConfig:
         d = dict(d)
         if "road_view" not in d:  # a config written before the study's options: brl 0.1's choices
             d.update(road_view="road", offroad_end=None)
-        if "route_kinds" in d:
+        if d.get("route_kinds") is not None:
             d["route_kinds"] = tuple(d["route_kinds"])
         return cls(**d)
 
     def reward_params(self) -> RewardParams:
         """The reward's parameters for this run."""
         return RewardParams(target_speed_kmh=self.target_speed_kmh, road_view=self.road_view)
+
+    def route_reward(self) -> RouteRewardParams | None:
+        """The route-following reward terms of a navigation run (None for lane keeping)."""
+        if self.task != "navigation":
+            return None
+        return RouteRewardParams(self.r_progress, self.r_wrong_turn, self.wrong_turn_m)
+
+    def new_agent(self) -> Any:
+        """A fresh agent for this run: the Bayesian agent, or the command-conditioned one for navigation."""
+        if self.task == "navigation":
+            from brlcli.agent.command import CommandAgent
+
+            return CommandAgent(state_dim=30, n_actions=4, params=self.agent_params(), bootstrap=self.command_bootstrap)
+        return BayesianAgent(state_dim=30, n_actions=4, params=self.agent_params())
 
     def camera(self) -> CameraConfig:
         """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""
@@ -186,19 +227,21 @@ def _labeler(cfg: TrainConfig) -> Callable[[np.ndarray], np.ndarray] | None:
 
 
 def _make_env(cfg: TrainConfig) -> DrivingEnv:
-    return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training", kinds=cfg.route_kinds,
-                      reward=cfg.reward_params(), labeler=_labeler(cfg), camera=cfg.camera(),
-                      offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
-                      start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end)
+    return DrivingEnv(town=cfg.town, weather=cfg.weather,
+                      routes="navigation" if cfg.task == "navigation" else "training",
+                      kinds=tuple(cfg.route_kinds or ()), reward=cfg.reward_params(), labeler=_labeler(cfg),
+                      camera=cfg.camera(), offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
+                      start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end,
+                      route_reward=cfg.route_reward())
 
 
 def _log_row(step: int, episode: int, decision: int, action: int, reward: float, terms: dict, learn: Any,
-             agent: BayesianAgent, m: dict, attempt: int) -> list:
+             agent: Any, m: dict, attempt: int, command: int) -> list:
     return [step, episode, decision, ACTION_NAMES[action], reward, terms["collision"], terms["offroad"],
             terms["otherlane"], terms["speed"], terms["road_view"], learn.td_error, learn.component,
             int(learn.created), learn.weight, learn.weight_case, agent.n_components, agent.alpha, agent.tau,
             agent.rho, m["forward_speed_kmh"], m["intersection_offroad"], m["intersection_otherlane"], m["x"], m["y"],
-            attempt]
+            attempt, command, terms.get("progress", 0.0), terms.get("wrong_turn", 0.0)]
 
 
 def _format(v: Any) -> str:
@@ -211,7 +254,7 @@ class _Checkpoint:
     def __init__(self, run_dir: Path) -> None:
         self.dir = run_dir / "checkpoint"
 
-    def save(self, agent: BayesianAgent, rng: np.random.Generator, step: int, episode: int, log_rows: int,
+    def save(self, agent: Any, rng: np.random.Generator, step: int, episode: int, log_rows: int,
              stats: dict) -> None:
         self.dir.mkdir(parents=True, exist_ok=True)
         agent.save(self.dir / "agent.npz")
@@ -219,7 +262,7 @@ class _Checkpoint:
                                                    "log_rows": log_rows, "rng": rng.bit_generator.state,
                                                    "stats": stats})
 
-    def load(self) -> tuple[BayesianAgent, np.random.Generator, dict] | None:
+    def load(self, cfg: TrainConfig) -> tuple[Any, np.random.Generator, dict] | None:
         state_path = self.dir / "state.json"
         if not state_path.exists():
             return None
@@ -230,7 +273,12 @@ class _Checkpoint:
         if state.get("version") != CHECKPOINT_VERSION:
             raise BrlInputError(f"checkpoint {state_path} has version {state.get('version')}, this brl reads "
                                 f"{CHECKPOINT_VERSION}")
-        agent = BayesianAgent.load(self.dir / "agent.npz")
+        if cfg.task == "navigation":
+            from brlcli.agent.command import CommandAgent
+
+            agent: Any = CommandAgent.load(self.dir / "agent.npz", cfg.command_bootstrap)
+        else:
+            agent = BayesianAgent.load(self.dir / "agent.npz")
         rng = np.random.default_rng()
         rng.bit_generator.state = state["rng"]
         return agent, rng, state
@@ -249,22 +297,34 @@ class _Curve:
         from brlcli.settings import setting_name
 
         self.setting = setting_name(cfg.input, cfg.input, cfg.variant)
-        self.evaluator = SuiteEvaluator("paper")
+        self.task = cfg.task
+        self.evaluator = SuiteEvaluator("nav_validation" if cfg.task == "navigation" else "paper")
         self.eval_s = 0.0
 
-    def evaluate(self, agent: BayesianAgent, step: int) -> None:
+    def evaluate(self, agent: Any, step: int) -> None:
         from brlcli.curve import write_curve
-        from brlcli.policy import StatePolicy, greedy_brl
 
         t0 = time.perf_counter()
-        policy = StatePolicy("brl", self.setting, greedy_brl(agent), self.labeler,  # never the training generator
-                             self.camera)
+        policy = greedy_policy(agent, self.task, self.setting, self.labeler, self.camera)
+        branch = getattr(agent, "branch", None)
         self.rows.append({"env_steps": step, **self.evaluator.evaluate(policy)})
+        if branch is not None:  # evaluation sets the branches; the training loop's step continues in its own
+            agent._branch = branch
         write_curve(self.path, self.rows)
         self.eval_s += time.perf_counter() - t0
 
     def close(self) -> None:
         self.evaluator.close()
+
+
+def greedy_policy(agent: Any, task: str, setting: str, labeler: Callable[[np.ndarray], np.ndarray] | None,
+                  camera: CameraConfig) -> Any:
+    """The bench policy of a training agent, acting greedily (never with the training generator)."""
+    from brlcli.policy import StatePolicy, greedy_brl, greedy_command_brl
+
+    if task == "navigation":
+        return StatePolicy("brl", setting, greedy_command_brl(agent), labeler, camera, uses_command=True)
+    return StatePolicy("brl", setting, greedy_brl(agent), labeler, camera)
 
 
 def _truncate_log(path: Path, rows: int) -> None:
@@ -308,10 +368,10 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         return json.loads((run_dir / "summary.json").read_text())
     env = _make_env(cfg)
     ckpt = _Checkpoint(run_dir)
-    loaded = ckpt.load() if resume else None
+    loaded = ckpt.load(cfg) if resume else None
     log_path = run_dir / "log.csv"
     if loaded is None:
-        agent = BayesianAgent(state_dim=30, n_actions=4, params=cfg.agent_params())
+        agent = cfg.new_agent()
         rng = np.random.default_rng([cfg.seed, 1])
         step, episode, stats = 0, 0, {"episodes": 0, "goals": 0, "reward_sum": 0.0, "wall_s": 0.0}
         atomic_write_bytes(log_path, (",".join(LOG_COLUMNS) + "\n").encode())
@@ -326,28 +386,34 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     stats.setdefault("window_offroad", [])
     stats.setdefault("restarts", [])
     curve = _Curve(run_dir, cfg, env, step) if cfg.curve_every else None
+    nav = cfg.task == "navigation"
     t0 = time.perf_counter() - stats["wall_s"]
     recent: list[float] = []
     td = 0.0
     with open(log_path, "a", newline="") as fh:
         while step - stats["attempt_start"] < cfg.steps:
-            obs, _ = env.reset(seed=_episode_seed(cfg.seed, episode))
+            obs, reset_info = env.reset(seed=_episode_seed(cfg.seed, episode))
+            command = reset_info["command"]
             agent.begin_episode(rng)
             state = obs.astype(np.float64)
             buffer = io.StringIO()
             rows = csv.writer(buffer, lineterminator="\n")
             decision, reached = 0, False
             while step - stats["attempt_start"] < cfg.steps:
+                if nav:
+                    agent.set_command(command)
                 action = agent.act(state, rng)
                 obs, reward, terminated, truncated, info = env.step(action)
                 next_state = obs.astype(np.float64)
                 if decision > 0:  # no learning on the first decision after a reset
-                    learn = agent.learn(state, action, reward, next_state)
+                    learn = agent.learn(state, action, reward, next_state, info["command"]) if nav else \
+                        agent.learn(state, action, reward, next_state)
                     step += 1
                     td = learn.td_error
                     rows.writerow([_format(v) for v in _log_row(step, episode, decision, action, reward,
                                                                 info["reward_terms"], learn, agent,
-                                                                info["measurements"], stats["attempt"])])
+                                                                info["measurements"], stats["attempt"],
+                                                                command)])
                     stats["reward_sum"] += reward
                     if cfg.restart_below is not None:
                         stats["window"].append(reward)
@@ -363,6 +429,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                                           agent.n_components))
                 decision += 1
                 state = next_state
+                command = info["command"]
                 if terminated or truncated:
                     reached = terminated
                     break
@@ -377,14 +444,15 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                                           "offroad_share": float(np.mean(stats["window_offroad"]))})
                 stats.update(attempt=stats["attempt"] + 1, attempt_start=step, checks_done=0, window=[],
                              window_offroad=[])
-                agent = BayesianAgent(state_dim=30, n_actions=4, params=cfg.agent_params())
+                agent = cfg.new_agent()
             stats["wall_s"] = time.perf_counter() - t0
             ckpt.save(agent, rng, step, episode, step, stats)
     wall = time.perf_counter() - t0 - (curve.eval_s if curve is not None else 0.0)  # learning time only
     agent.save(run_dir / "model.npz")
     summary: dict[str, Any] = {
         "seed": cfg.seed, "steps": step, "episodes": stats["episodes"], "episodes_reaching_goal": stats["goals"],
-        "mean_reward": stats["reward_sum"] / max(step, 1), "components": agent.n_components,
+        "mean_reward": stats["reward_sum"] / max(step, 1),
+        "components": sum(agent.components_per_branch) if nav else agent.n_components,
         "alpha": agent.alpha, "tau": agent.tau, "rho": agent.rho, "wall_s": wall, "steps_per_s": step / wall,
     }
     if cfg.restart_below is not None:
@@ -393,7 +461,12 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     env.close()
     if curve is not None:
         curve.close()
-    if cfg.evaluate:
+    if nav:
+        summary["components_per_branch"] = dict(zip(("follow", "left", "right", "straight"),
+                                                     agent.components_per_branch, strict=True))
+    if cfg.evaluate and nav:
+        summary["eval"] = evaluate_navigation(agent, cfg)
+    elif cfg.evaluate:
         from brlcli.evaluate import evaluate_lane_keeping
 
         ev = evaluate_lane_keeping(agent, town=cfg.town, weather=cfg.weather, labeler=_labeler(cfg),
@@ -404,6 +477,23 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         progress(Progress(cfg.seed, step, step, episode, float(np.mean(recent)) if recent else 0.0, td,
                           agent.n_components, done=True))
     return {**provenance(cfg.to_dict()), "summary": summary}
+
+
+def evaluate_navigation(agent: Any, cfg: TrainConfig) -> dict[str, Any]:
+    """Greedy success, collision-free and Either shares on the navigation validation suite (nav_validation)."""
+    from brlcli.curve import SuiteEvaluator
+    from brlcli.settings import setting_name
+
+    evaluator = SuiteEvaluator("nav_validation")
+    try:
+        policy = greedy_policy(agent, "navigation", setting_name(cfg.input, cfg.input, cfg.variant), _labeler(cfg),
+                               cfg.camera())
+        figures = evaluator.evaluate(policy)
+    finally:
+        evaluator.close()
+    return {"suite": "nav_validation", "success_rate": figures["success"],
+            "collision_free_rate": figures["collision_free"], "either_share": figures["either"],
+            "score": figures["score"], "episodes": figures["episodes"]}
 
 
 def parse_seeds(text: str) -> list[int]:

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from brlcli.errors import BrlInputError
-from brlcli.train import VARIANT_PRESETS, TrainConfig
+from brlcli.train import TASK_PRESETS, VARIANT_PRESETS, TrainConfig
 
 OPEN_TABLES = {"params"}
 """Config tables whose keys are checked by their owner (params.*: BRLParams.from_dict), not against the defaults."""
@@ -83,9 +83,12 @@ def variant_of(layers: Sequence[dict[str, Any]], default: str) -> str:
 
 def resolve_config(layers: Sequence[dict[str, Any]], default_variant: str = "paper") -> TrainConfig:
     """The defaults, the named variant's preset, then `layers` in order; validated with one-line errors."""
-    defaults = TrainConfig().to_dict()
+    defaults = {**TrainConfig().to_dict(), "route_kinds": None}  # None: the task's routes (TASK_ROUTE_KINDS)
     variant = variant_of(layers, default_variant)
     merged = merge_layer(defaults, {**VARIANT_PRESETS[variant], "variant": variant}, "", defaults)
+    task = next((layer["task"] for layer in reversed(layers) if "task" in layer), defaults["task"])
+    preset = TASK_PRESETS.get(task, {}) if isinstance(task, str) else {}  # an unknown task: TrainConfig says so
+    merged = merge_layer(merged, preset, "", defaults)
     for layer in layers:
         merged = merge_layer(merged, layer, "", defaults)
     check_types(merged, defaults)

@@ -259,6 +259,25 @@ def _log_argmax(ll: np.ndarray, pma: np.ndarray, a: int) -> int:
 
 
 @_jit
+def next_value(ll: np.ndarray, q: np.ndarray, n: int, over_actions: bool, mixture: bool) -> float:
+    """The value the TD target of `decide` takes at a next state with log-likelihoods ll[:n]: Q[a', m'] (eqs. 6-7),
+    or with `mixture` max_a sum_m phi_m Q[a, m]."""
+    if mixture:
+        phi = _normalised(_shifted(ll, n))
+        best = -math.inf
+        for a in range(q.shape[0]):
+            v = 0.0
+            for m in range(n):
+                v += phi[m] * q[a, m]
+            if v > best:
+                best = v
+        return best
+    pma, p_a, _ = tables(q, n, over_actions)
+    a_next = _argmax(_p_action(_shifted(ll, n), pma, p_a))
+    return q[a_next, _log_argmax(ll, pma, a_next)]
+
+
+@_jit
 def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.ndarray, n: int, a_t: int,
            reward: float, gamma: float, t_l: float, t_u: float,
            reference_code: bool, mixture: bool) -> tuple[float, int, float, float, int]:

@@ -402,11 +402,30 @@ class BayesianAgent:
 
     # -- learning --------------------------------------------------------------------------------------------
 
-    def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray) -> LearnStep:
-        """One step of Algorithm 1 on (s_t, a_t, r_t, s_{t+1}); see docs/brl-math.md 'One learning step'."""
+    def value(self, state: np.ndarray) -> float:
+        """The value Algorithm 1's TD target takes at a state: Q[a', m'] (eqs. 6-7; the mixture's with td_error
+        'mixture'). Another agent's learning step can bootstrap from it (`learn(..., next_value=)`)."""
+        row = self._cached_row(*self._checked(state, "state"))
+        return float(_kernels.next_value(self._cache_ll[row], self._q, self._n, self._params.variant != "paper",
+                                         self._params.td_error == "mixture"))
+
+    def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray,
+              next_value: float | None = None) -> LearnStep:
+        """One step of Algorithm 1 on (s_t, a_t, r_t, s_{t+1}); see docs/brl-math.md 'One learning step'.
+
+        With `next_value` the TD target is r_t + gamma * next_value instead of this agent's own value of s_{t+1}
+        (the command-conditioned agent, where the next decision belongs to another branch); `next_state` is then
+        not read."""
         p = self._params
         checked_t = self._checked(state, "state")
-        checked_next = self._checked(next_state, "next_state")
+        if next_value is not None:
+            if not math.isfinite(next_value):
+                raise ValueError(f"next_value must be finite, got {next_value}")
+            reward_in, gamma = float(reward) + p.gamma * float(next_value), 0.0
+            checked_next = checked_t
+        else:
+            reward_in, gamma = float(reward), p.gamma
+            checked_next = self._checked(next_state, "next_state")
         if isinstance(action, bool) or not isinstance(action, int | np.integer) or not 0 <= action < self._n_actions:
             raise ValueError(f"action must be an integer in [0, {self._n_actions}), got {action!r}")
         a_t = int(action)
@@ -418,7 +437,7 @@ class BayesianAgent:
         row_next = row_t if checked_next[1] == checked_t[1] else self._cached_row(*checked_next)
         # steps 1-3 and the weight of eq. 9: a', m', m_t, d_t, the TD error (eq. 5) and w for m_t
         td_error, m_t, d_t, weight, case = _kernels.decide(
-            self._cache_ll, self._cache_dist, row_t, row_next, self._q, self._n, a_t, reward, p.gamma, p.T_l,
+            self._cache_ll, self._cache_dist, row_t, row_next, self._q, self._n, a_t, reward_in, gamma, p.T_l,
             p.T_u, p.variant != "paper", p.td_error == "mixture")
         m_t = int(m_t)
         weight = float(weight)

@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 from torch import nn
@@ -32,10 +33,12 @@ from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM
 from brlcli.policy import StatePolicy, setting_name
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
-from brlcli.reward import RewardParams
+from brlcli.reward import RewardParams, RouteRewardParams
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import ACTIONS, DrivingEnv
+from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
+from brlcli.sim.roadnet import BRANCH_NAMES, command_branch
 from brlcli.torchfiles import load_torch_doc, save_torch_doc
 
 DRL_FORMAT = "brl-drl"
@@ -49,12 +52,13 @@ class DeepRLConfig:
     """A deep RL training run (saved as `config.json`); defaults are the documented budget."""
 
     algo: str = "dqn"
+    task: str = "lane-keeping"  # or "navigation": brl train's task (the route command enters the state one-hot)
     town: str = "town01"
     weather: int = 1
     input: str = "gt"
     steps: int = 100_000
     eval_every: int = 5_000
-    eval_suite: str = "paper"
+    eval_suite: str = "auto"  # paper, nav_validation or none; auto: the task's (paper for lane keeping)
     seed: int = 0
     learning_rate: float = 5e-4
     buffer_size: int = 100_000
@@ -83,8 +87,13 @@ class DeepRLConfig:
             raise BrlInputError("--steps and --eval-every must be at least 1")
         if self.eval_every % self.train_freq:
             raise BrlInputError(f"--eval-every must be a multiple of the train frequency ({self.train_freq})")
-        if self.eval_suite not in ("paper", "none"):
-            raise BrlInputError(f"--eval-suite must be paper or none, not '{self.eval_suite}'")
+        if self.task not in TASKS:
+            raise BrlInputError(f"unknown task '{self.task}'; choose one of {', '.join(TASKS)}")
+        if self.eval_suite not in ("auto", "paper", "nav_validation", "none"):
+            raise BrlInputError(f"--eval-suite must be paper, nav_validation or none, not '{self.eval_suite}'")
+        if (self.task, self.eval_suite) in (("lane-keeping", "nav_validation"), ("navigation", "paper")):
+            raise BrlInputError(f"--eval-suite {self.eval_suite} does not fit --task {self.task}: lane keeping "
+                                "evaluates on paper, navigation on nav_validation (its routes need commands)")
         from brlcli.sim.weather import get_weather
 
         get_weather(self.weather)
@@ -103,6 +112,18 @@ class DeepRLConfig:
     def camera(self) -> CameraConfig:
         """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""
         return CameraConfig(pitch_deg=self.camera_pitch_deg)
+
+    @property
+    def evaluation_suite(self) -> str:
+        """The learning curve's suite: `eval_suite`, with auto resolved to the task's (paper or nav_validation)."""
+        if self.eval_suite == "auto":
+            return "nav_validation" if self.task == "navigation" else "paper"
+        return self.eval_suite
+
+    @property
+    def state_dim(self) -> int:
+        """Length of the network's input: the 30-number state, plus the one-hot command for navigation."""
+        return STATE_DIM + (len(BRANCH_NAMES) if self.task == "navigation" else 0)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
@@ -138,7 +159,7 @@ def q_network(net_arch: tuple[int, ...], state_dim: int, n_actions: int) -> nn.S
 def save_model(path: Path, q_net: nn.Module, cfg: DeepRLConfig, env_steps: int) -> None:
     """Write a Q-network file (state dict, architecture, training config) atomically."""
     save_torch_doc(path, DRL_FORMAT, DRL_FORMAT_VERSION, {
-        "algo": cfg.algo, "net_arch": list(cfg.net_arch), "state_dim": STATE_DIM, "n_actions": len(ACTIONS),
+        "algo": cfg.algo, "net_arch": list(cfg.net_arch), "state_dim": cfg.state_dim, "n_actions": len(ACTIONS),
         "env_steps": env_steps, "train": json.dumps(cfg.to_dict(), sort_keys=True), "state_dict": q_net.state_dict()})
 
 
@@ -150,7 +171,7 @@ def load_model(path: str | Path) -> tuple[nn.Sequential, dict[str, Any]]:
     doc = load_torch_doc(path, DRL_FORMAT, DRL_FORMAT_VERSION, "deep RL model", "brl train-rl")
     try:
         state_dim, n_actions = int(doc["state_dim"]), int(doc["n_actions"])
-        if state_dim != STATE_DIM or n_actions != len(ACTIONS):
+        if state_dim not in (STATE_DIM, STATE_DIM + len(BRANCH_NAMES)) or n_actions != len(ACTIONS):
             raise BrlInputError(f"deep RL model {path} has state size {state_dim} and {n_actions} actions; brl's "
                                 f"task uses {STATE_DIM} and {len(ACTIONS)}")
         net = q_network(tuple(int(h) for h in doc["net_arch"]), state_dim, n_actions)
@@ -172,6 +193,37 @@ def greedy_action_fn(net: nn.Module) -> Callable[[np.ndarray], int]:
     return act
 
 
+def with_command(state: np.ndarray, command: int) -> np.ndarray:
+    """The navigation network's input: the 30-number state and the one-hot branch of the route command."""
+    onehot = np.zeros(len(BRANCH_NAMES), np.float32)
+    onehot[int(command_branch(int(command)))] = 1.0
+    return np.concatenate([np.asarray(state, np.float32), onehot])
+
+
+def greedy_command_action_fn(net: nn.Module) -> Callable[[np.ndarray, int], int]:
+    """(state, command) -> argmax_a Q([state, one-hot command], a)."""
+    act = greedy_action_fn(net)
+    return lambda state, command: act(with_command(state, command))
+
+
+class CommandObservation(gym.Wrapper):
+    """Appends the one-hot route command of the next decision (info['command']) to the driving env's state."""
+
+    def __init__(self, env: DrivingEnv) -> None:
+        super().__init__(env)
+        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(STATE_DIM + len(BRANCH_NAMES),), dtype=np.float32)
+
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict]:
+        """Reset the env; the observation carries the first command."""
+        obs, info = self.env.reset(**kwargs)
+        return with_command(obs, info["command"]), info
+
+    def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """Step the env; the observation carries the next command."""
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return with_command(obs, info["command"]), reward, terminated, truncated, info
+
+
 class DeepRLPolicy(StatePolicy):
     """A trained DQN deployed greedily on GT or estimated labels (decision every 7 frames), for `brl bench`."""
 
@@ -183,10 +235,13 @@ class DeepRLPolicy(StatePolicy):
 
             model = str(models_dir() / "dqn" / "drl.pt")
         net, meta = load_model(model)
+        self.task = str(meta["train"].get("task", "lane-keeping"))
         setting = f"{meta['algo'].upper()}-{setting_name(meta['train'].get('input', 'gt'), deploy)}"
         pitch = float(meta["train"].get("camera_pitch_deg", CameraConfig().pitch_deg))
-        super().__init__(name, setting, greedy_action_fn(net), labeler_for(deploy, segnet),
-                         CameraConfig(pitch_deg=pitch))
+        nav = self.task == "navigation"
+        super().__init__(name, f"{setting} (navigation)" if nav else setting,
+                         greedy_command_action_fn(net) if nav else greedy_action_fn(net),
+                         labeler_for(deploy, segnet), CameraConfig(pitch_deg=pitch), uses_command=nav)
 
 
 @dataclass
@@ -206,11 +261,14 @@ def _chunk_seed(seed: int, chunk: int) -> int:
 
 
 def _make_env(cfg: DeepRLConfig) -> Any:
-    return DrivingEnv(town=cfg.town, weather=cfg.weather, routes="training",
-                      reward=cfg.reward_params(),
-                      labeler=labeler_for(cfg.input, cfg.segnet, "--input"), camera=cfg.camera(),
-                      offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
-                      start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end)
+    nav = cfg.task == "navigation"
+    env = DrivingEnv(town=cfg.town, weather=cfg.weather, routes="navigation" if nav else "training",
+                     kinds=TASK_ROUTE_KINDS[cfg.task], reward=cfg.reward_params(),
+                     labeler=labeler_for(cfg.input, cfg.segnet, "--input"), camera=cfg.camera(),
+                     offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
+                     start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end,
+                     route_reward=RouteRewardParams() if nav else None)
+    return CommandObservation(env) if nav else env
 
 
 def _build_dqn(cfg: DeepRLConfig, env: Any) -> Any:
@@ -321,7 +379,7 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
     wall0 = state["wall_s"] if state else 0.0
     eval_s = state["eval_s"] if state else 0.0
     t0 = time.perf_counter()
-    evaluator = SuiteEvaluator(cfg.eval_suite) if cfg.eval_suite != "none" else None
+    evaluator = SuiteEvaluator(cfg.evaluation_suite) if cfg.evaluation_suite != "none" else None
     setting = f"{cfg.algo.upper()}-{setting_name(cfg.input, cfg.input)}"
     n_chunks = -(-cfg.steps // cfg.eval_every)
 
@@ -346,7 +404,11 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
             save_model(run_dir / "drl.pt", q_net, cfg, int(model.num_timesteps))
             if evaluator is not None:
                 t_eval = time.perf_counter()
-                pol = StatePolicy("dqn", setting, greedy_action_fn(q_net), env.labeler, cfg.camera())
+                if cfg.task == "navigation":
+                    pol = StatePolicy("dqn", setting, greedy_command_action_fn(q_net), env.unwrapped.labeler,
+                                      cfg.camera(), uses_command=True)
+                else:
+                    pol = StatePolicy("dqn", setting, greedy_action_fn(q_net), env.labeler, cfg.camera())
                 curve.append({"env_steps": int(model.num_timesteps), **evaluator.evaluate(pol)})
                 write_curve(run_dir / CURVE_FILE, curve)
                 eval_s += time.perf_counter() - t_eval

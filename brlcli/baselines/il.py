@@ -37,28 +37,17 @@ from torch import nn
 from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.segnet import check_input_source
-from brlcli.sim.roadnet import Command
+from brlcli.sim.roadnet import BRANCH_COMMANDS, BRANCH_NAMES, command_branch
 from brlcli.sim.vehicle import Control
 from brlcli.torchfiles import load_torch_doc, save_torch_doc
 
 IL_FORMAT = "brl-il"
 IL_FORMAT_VERSION = 1
 DEFAULT_IL_MODEL = "il/il.pt"
-BRANCH_COMMANDS = (Command.LANE_FOLLOW, Command.TURN_LEFT, Command.TURN_RIGHT, Command.GO_STRAIGHT)
-BRANCH_NAMES = ("follow", "left", "right", "straight")
 OUTPUT_NAMES = ("steer", "throttle", "brake")
 SPEED_SCALE_KMH = 40.0
 """Speeds enter (and the auxiliary head predicts) speed_kmh / SPEED_SCALE_KMH."""
 FRAME_DT_NS = 100_000_000
-
-
-def command_branch(command: int | np.ndarray) -> np.ndarray:
-    """Branch index of CARLA command codes (2 follow -> 0, 3 left -> 1, 4 right -> 2, 5 straight -> 3; else 0)."""
-    cmd = np.asarray(command, dtype=np.int64)
-    out = np.zeros(cmd.shape, dtype=np.int64)
-    for i, c in enumerate(BRANCH_COMMANDS):
-        out[cmd == int(c)] = i
-    return out
 
 
 def default_il_path() -> Path:

@@ -13,8 +13,13 @@ from brlcli.sim.roadnet import RoadNetwork
 from brlcli.sim.town import load_town
 from brlcli.sim.weather import TEST_WEATHERS, TRAIN_WEATHERS, get_weather
 
-SUITES = ("paper", "validation", "corl2017", "nocrash")
-SUITE_VERSION = {"paper": 1, "validation": 1, "corl2017": 1, "nocrash": 1}
+SUITES = ("paper", "validation", "corl2017", "nocrash", "nav_validation")
+SUITE_VERSION = {"paper": 1, "validation": 1, "corl2017": 1, "nocrash": 1, "nav_validation": 1}
+NAV_VALIDATION_ROUTES = 8
+"""Planner routes per town in the navigation validation suite (`brlcli.sim.navroutes.validation_routes`)."""
+NAV_VALIDATION_CONDITIONS = {"training": ("town01", (1,)), "new_town_weather": ("town02", (14,))}
+"""The navigation validation suite (issue 20; what navigation models are chosen on, never CoRL2017's poses): 8
+planner routes in town01 in the training weather and 8 in town02 in a test weather, no traffic."""
 #: Lane-keeping suites: suite -> the town route set it drives (same towns, weathers and metrics as the paper's).
 LANE_KEEPING_SUITES = {"paper": "lane_keeping", "validation": "validation"}
 PAPER_TOWNS = ("town02", "town01")
@@ -161,6 +166,26 @@ def nocrash_suite(conditions: tuple[str, ...] | None = None, tasks: tuple[str, .
     return specs
 
 
+def nav_validation_suite(conditions: tuple[str, ...] | None = None,
+                         weathers: tuple[int, ...] | None = None) -> list[EpisodeSpec]:
+    """Navigation validation: seeded multi-junction planner routes (not CoRL2017's poses), CoRL2017's timeout."""
+    from brlcli.sim.navroutes import validation_routes
+
+    specs = []
+    for cond in conditions or tuple(NAV_VALIDATION_CONDITIONS):
+        town_name, cond_weathers = NAV_VALIDATION_CONDITIONS[cond]
+        town = load_town(town_name)
+        net = RoadNetwork(town)
+        for w in cond_weathers:
+            if weathers is not None and w not in weathers:
+                continue
+            for i, r in enumerate(validation_routes(net, NAV_VALIDATION_ROUTES)):
+                length = net.route(r.start, r.goal).length_m
+                specs.append(EpisodeSpec("nav_validation", cond, "navigation", town.name, int(w), i, r.start,
+                                         r.goal, round(length, 3), route_timeout_s(length)))
+    return specs
+
+
 def build_suite(suite: str, conditions: str | None = None, tasks: str | None = None,
                 weathers: str | None = None) -> list[EpisodeSpec]:
     """Episode list of a suite, filtered by comma-separated conditions, tasks and weathers (ids or names)."""
@@ -175,7 +200,10 @@ def build_suite(suite: str, conditions: str | None = None, tasks: str | None = N
             specs = paper_suite(wl, towns, suite)
             return [s for s in specs if kinds is None or s.task in kinds]
         return paper_suite(wl, suite=suite)
-    if suite == "nocrash":
+    if suite == "nav_validation":
+        _parse_list(tasks, ("navigation",), "task")
+        specs = nav_validation_suite(_parse_list(conditions, tuple(NAV_VALIDATION_CONDITIONS), "condition"), wl)
+    elif suite == "nocrash":
         conds = _parse_list(conditions, tuple(NOCRASH_CONDITIONS), "condition")
         specs = nocrash_suite(conds, _parse_list(tasks, NOCRASH_TASKS, "task"), wl)
     else:

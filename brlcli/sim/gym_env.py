@@ -10,7 +10,7 @@ import numpy as np
 
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM, state_vector
-from brlcli.reward import RewardParams, reward_terms
+from brlcli.reward import RewardParams, RouteRewardParams, reward_terms, route_terms
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.vehicle import Control
 from brlcli.sim.world import FRAME_DT_S, World
@@ -40,6 +40,12 @@ class DrivingEnv(gym.Env):
     An episode starts at a route drawn from `routes` ("training", "lane_keeping" or "validation" of the town) and
     ends at the goal (terminated), at the route's CoRL-style timeout or when stuck (truncated). With a `labeler`
     (RGB -> label image, e.g. the segmentation net) the state comes from estimated labels instead of ground truth.
+
+    `routes="navigation"` (issue 20, outside the paper) drives the town's training routes and the planner's junction
+    routes (`brlcli.sim.navroutes.junction_routes`, kinds turn_left / turn_right / go_straight), drawing a kind
+    uniformly and then a route of it, and, with `route_reward`, adds the
+    route-following terms to the reward (progress along the route; a wrong turn, farther than `wrong_turn_m` from
+    the route, ends the episode). Every step's info carries the route `command` (CARLA code) for the next decision.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -50,7 +56,7 @@ class DrivingEnv(gym.Env):
                  render_mode: str | None = None,
                  labeler: Callable[[np.ndarray], np.ndarray] | None = None, offroad_end: float | None = None,
                  start_offset_m: float = 0.0, start_yaw_deg: float = 0.0,
-                 otherlane_end: float | None = None) -> None:
+                 otherlane_end: float | None = None, route_reward: RouteRewardParams | None = None) -> None:
         super().__init__()
         try:
             self.check_episode_rules(offroad_end, start_offset_m, start_yaw_deg, otherlane_end)
@@ -61,7 +67,22 @@ class DrivingEnv(gym.Env):
         self.start_offset_m = float(start_offset_m)  # start pose: lateral offset ~ U(-a, a) m
         self.start_yaw_deg = float(start_yaw_deg)  # and heading offset ~ U(-b, b) degrees
         self.world = World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians, camera=camera)
-        self.routes = [r for r in self.world.town.route_set(routes) if r.kind in kinds]
+        if routes == "navigation":
+            from brlcli.sim.navroutes import junction_routes
+
+            candidates = list(self.world.town.route_set("training")) + junction_routes(self.world.network)
+        else:
+            candidates = list(self.world.town.route_set(routes))
+        self.routes = [r for r in candidates if r.kind in kinds]
+        self.route_reward = route_reward
+        self._by_kind: list[list] | None = None
+        if routes == "navigation":
+            from brlcli.sim.navroutes import KIND_WEIGHTS
+
+            kinds_here = list(dict.fromkeys(r.kind for r in self.routes))
+            self._by_kind = [[r for r in self.routes if r.kind == k] for k in kinds_here]
+            weights = np.array([KIND_WEIGHTS.get(k, 1.0) for k in kinds_here])
+            self._kind_cdf = np.cumsum(weights / weights.sum())
         if not self.routes:
             raise BrlInputError(f"town {self.world.town.name} has no {routes} routes of kinds {', '.join(kinds)}")
         self.reward_params = reward or RewardParams()
@@ -96,6 +117,10 @@ class DrivingEnv(gym.Env):
             if not matches:
                 raise BrlInputError(f"unknown route '{name}'")
             spec = matches[0]
+        elif self._by_kind is not None:  # navigation: a kind (KIND_WEIGHTS), then one of its routes
+            k = min(int(np.searchsorted(self._kind_cdf, self.np_random.random(), side="right")), len(self._by_kind) - 1)
+            group = self._by_kind[k]
+            spec = group[int(self.np_random.integers(len(group)))]
         else:
             spec = self.routes[int(self.np_random.integers(len(self.routes)))]
         self.spec_route = spec
@@ -109,7 +134,10 @@ class DrivingEnv(gym.Env):
         frame = self.world.reset(start, seed=int(self.np_random.integers(2**31)))
         self._collision_total = 0.0
         self._stuck_s = 0.0
-        return self._observe(frame), {"route": spec.name, "route_length_m": self.route.length_m}
+        m = frame.measurements
+        self._route_s, _ = self.route.project(m.x, m.y)
+        return self._observe(frame), {"route": spec.name, "route_length_m": self.route.length_m,
+                                      "command": int(self.route.command_at(self._route_s))}
 
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the action's control for 7 frames, render the last one, and score it."""
@@ -125,7 +153,14 @@ class DrivingEnv(gym.Env):
         obs = self._observe(frame)
         terms = reward_terms(collided, m.intersection_offroad, m.intersection_otherlane, m.forward_speed_kmh,
                              self._state, self.reward_params)
-        s, _ = self.route.project(m.x, m.y)
+        s, lateral = self.route.project(m.x, m.y)
+        wrong_turn = False
+        if self.route_reward is not None:
+            extra = route_terms(s - self._route_s, self.reward_params.target_speed_kmh / 3.6 * FRAMES_PER_DECISION *
+                                FRAME_DT_S, lateral, self.route_reward)
+            wrong_turn = extra["wrong_turn"] < 0.0
+            terms = {**terms, **extra, "total": terms["total"] + extra["progress"] + extra["wrong_turn"]}
+        self._route_s = s
         dist_goal = float(np.hypot(m.x - self.route.goal[0], m.y - self.route.goal[1]))
         terminated = dist_goal <= GOAL_TOLERANCE_M or s >= self.route.length_m - GOAL_TOLERANCE_M
         self._stuck_s = self._stuck_s + FRAMES_PER_DECISION * FRAME_DT_S if abs(m.forward_speed_kmh) < \
@@ -133,9 +168,9 @@ class DrivingEnv(gym.Env):
         left_lane = (self.offroad_end is not None and m.intersection_offroad > self.offroad_end) or \
             (self.otherlane_end is not None and m.intersection_otherlane > self.otherlane_end)
         truncated = not terminated and (m.game_time_s >= self.timeout_s or self._stuck_s >= STUCK_TIME_S
-                                        or left_lane)
+                                        or left_lane or wrong_turn)
         info = {"reward_terms": terms, "measurements": m.as_dict(), "route_s_m": s, "collided": collided,
-                "left_lane": left_lane}
+                "left_lane": left_lane, "wrong_turn": wrong_turn, "command": int(self.route.command_at(s))}
         return obs, float(terms["total"]), bool(terminated), bool(truncated), info
 
     def render(self) -> np.ndarray | None:

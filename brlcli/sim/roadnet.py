@@ -27,6 +27,20 @@ class Command(IntEnum):
     GO_STRAIGHT = 5
 
 
+BRANCH_COMMANDS = (Command.LANE_FOLLOW, Command.TURN_LEFT, Command.TURN_RIGHT, Command.GO_STRAIGHT)
+"""The commands a command-conditioned policy has a branch for (CIL's four; REACH_GOAL drives as LANE_FOLLOW)."""
+BRANCH_NAMES = ("follow", "left", "right", "straight")
+
+
+def command_branch(command: int | np.ndarray) -> np.ndarray:
+    """Branch index of CARLA command codes (2 follow -> 0, 3 left -> 1, 4 right -> 2, 5 straight -> 3; else 0)."""
+    cmd = np.asarray(command, dtype=np.int64)
+    out = np.zeros(cmd.shape, dtype=np.int64)
+    for i, c in enumerate(BRANCH_COMMANDS):
+        out[cmd == int(c)] = i
+    return out
+
+
 @dataclass(frozen=True)
 class PathSegment:
     """One drivable path of the lane graph: a directed lane between two junctions, or a junction connector."""

@@ -1,0 +1,197 @@
+"""The command-conditioned Bayesian agent (issue 20; outside the paper): one Bayesian RL agent per route command.
+
+In the spirit of conditional imitation learning's branches, the planner's high-level command (follow lane, left,
+right, straight; `brlcli.sim.roadnet.BRANCH_COMMANDS`) selects one of four independent `BayesianAgent`s, each with
+the paper's equations (and whatever `BRLParams` the run chose) and its own mixture model, action values and
+schedules. The behaviour policy and the greedy action of a decision are those of the branch of the command at that
+decision; the learning step (s_t, a_t, r_t, s_{t+1}) goes to the branch of the command at t, Algorithm 1 unchanged
+inside it. Where the command changes between t and t+1, the TD target bootstraps (`bootstrap="next-branch"`, the
+default) from the value of s_{t+1} in the branch of the command at t+1, the branch that acts there, as Q-learning on
+the pair (state, command) would; `bootstrap="own-branch"` keeps the branch's own value of s_{t+1} (a branch then never
+learns what its last decisions leave to the next one: a turn that ends in the wrong lane looks as good as one that
+ends in the right one).
+
+Model file: one `.npz` with `format_version`, `kind = "command-conditioned"`, `branches` (the branch names) and,
+for each branch, the arrays of `BayesianAgent.save` under the prefix `<branch>.`.
+"""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from typing import Any
+
+import numpy as np
+
+from brlcli.agent.bayes import BayesianAgent, LearnStep, _one_line
+from brlcli.agent.params import BRLParams
+from brlcli.errors import BrlInputError
+from brlcli.npzio import save_npz
+from brlcli.sim.roadnet import BRANCH_NAMES, command_branch
+
+COMMAND_FORMAT_VERSION = 1
+"""Version of the command-conditioned model file."""
+COMMAND_KIND = "command-conditioned"
+BOOTSTRAPS = ("next-branch", "own-branch")
+"""Where a learning step whose next decision has another command takes the value of s_{t+1} from."""
+
+
+class CommandAgent:
+    """Four Bayesian RL agents, one per route command; `set_command` picks the branch `act` and `learn` use."""
+
+    def __init__(self, state_dim: int = 30, n_actions: int = 4, params: BRLParams | None = None,
+                 bootstrap: str = "next-branch") -> None:
+        if bootstrap not in BOOTSTRAPS:
+            raise ValueError(f"bootstrap must be one of {', '.join(BOOTSTRAPS)}, got {bootstrap!r}")
+        self.branches = [BayesianAgent(state_dim, n_actions, params) for _ in BRANCH_NAMES]
+        self._branch = 0
+        self.bootstrap = bootstrap
+
+    @classmethod
+    def from_branches(cls, branches: list[BayesianAgent], bootstrap: str = "next-branch") -> CommandAgent:
+        """An agent made of existing branches (in BRANCH_NAMES order)."""
+        if bootstrap not in BOOTSTRAPS:
+            raise ValueError(f"bootstrap must be one of {', '.join(BOOTSTRAPS)}, got {bootstrap!r}")
+        agent = cls.__new__(cls)
+        agent.branches = list(branches)
+        agent._branch = 0
+        agent.bootstrap = bootstrap
+        return agent
+
+    def set_command(self, command: int) -> None:
+        """Select the branch of a CARLA command code (2 follow, 3 left, 4 right, 5 straight; others follow)."""
+        self._branch = int(command_branch(int(command)))
+
+    @property
+    def branch(self) -> int:
+        """Index of the branch in use (into BRANCH_NAMES)."""
+        return self._branch
+
+    @property
+    def current(self) -> BayesianAgent:
+        """The agent of the branch in use."""
+        return self.branches[self._branch]
+
+    @property
+    def state_dim(self) -> int:
+        """Length of the state vector."""
+        return self.branches[0].state_dim
+
+    @property
+    def n_actions(self) -> int:
+        """Number of action primitives."""
+        return self.branches[0].n_actions
+
+    @property
+    def n_components(self) -> int:
+        """Components of the branch in use."""
+        return self.current.n_components
+
+    @property
+    def components_per_branch(self) -> list[int]:
+        """Components of every branch, in BRANCH_NAMES order."""
+        return [b.n_components for b in self.branches]
+
+    @property
+    def alpha(self) -> float:
+        """Learning rate of the branch in use."""
+        return self.current.alpha
+
+    @property
+    def tau(self) -> float:
+        """Temperature of the branch in use."""
+        return self.current.tau
+
+    @property
+    def rho(self) -> float:
+        """Creation distance of the branch in use."""
+        return self.current.rho
+
+    def begin_episode(self, rng: np.random.Generator) -> None:
+        """Start a training episode in every branch."""
+        for b in self.branches:
+            b.begin_episode(rng)
+
+    def act(self, state: np.ndarray, rng: np.random.Generator, greedy: bool = False) -> int:
+        """The branch's behaviour (or greedy) action for the state."""
+        return self.current.act(state, rng, greedy=greedy)
+
+    def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray,
+              next_command: int | None = None) -> LearnStep:
+        """One step of Algorithm 1 in the branch in use; with `next_command` naming another branch (and bootstrap
+        next-branch) the target takes that branch's value of s_{t+1}."""
+        nxt = None if next_command is None else int(command_branch(int(next_command)))
+        if nxt is None or nxt == self._branch or self.bootstrap == "own-branch":
+            return self.current.learn(state, action, reward, next_state)
+        value = self.branches[nxt].value(next_state)
+        return self.current.learn(state, action, reward, next_state, next_value=value)
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write every branch into one versioned .npz, atomically."""
+        import tempfile
+
+        arrays: dict[str, np.ndarray] = {"format_version": np.array(COMMAND_FORMAT_VERSION, dtype=np.int64),
+                                         "kind": np.array(COMMAND_KIND), "branches": np.array(BRANCH_NAMES)}
+        with tempfile.TemporaryDirectory() as tmp:
+            for name, b in zip(BRANCH_NAMES, self.branches, strict=True):
+                b.save(os.path.join(tmp, f"{name}.npz"))
+                with np.load(os.path.join(tmp, f"{name}.npz"), allow_pickle=False) as npz:
+                    arrays.update({f"{name}.{k}": npz[k] for k in npz.files})
+        directory = os.path.dirname(os.path.abspath(os.fspath(path)))
+        if not os.path.isdir(directory):
+            raise BrlInputError(f"cannot write model file {path}: directory {directory} does not exist")
+        save_npz(os.fspath(path), arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str], bootstrap: str = "next-branch") -> CommandAgent:
+        """Read a model written by `save` (the bootstrap rule is a training choice, not stored); a lane-keeping model,
+        a foreign or corrupt file raise BrlInputError."""
+        path = os.fspath(path)
+        try:
+            npz = np.load(path, allow_pickle=False)
+        except FileNotFoundError:
+            raise BrlInputError(f"model file {path} does not exist") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise BrlInputError(f"model file {path} is not a brl model (.npz): {_one_line(exc)}") from None
+        if not isinstance(npz, np.lib.npyio.NpzFile):
+            raise BrlInputError(f"model file {path} is a single .npy array, not a brl model (.npz)")
+        with npz:
+            if "kind" not in npz.files:
+                raise BrlInputError(f"model file {path} is a lane-keeping model, not a command-conditioned one")
+            try:
+                kind, version = str(npz["kind"]), int(npz["format_version"])
+                names = [str(n) for n in npz["branches"]]
+            except (KeyError, ValueError, TypeError) as exc:
+                raise BrlInputError(f"model file {path} is unreadable: {_one_line(exc)}") from None
+            if kind != COMMAND_KIND:
+                raise BrlInputError(f"model file {path} is a '{kind}' model, not a command-conditioned one")
+            if version != COMMAND_FORMAT_VERSION:
+                raise BrlInputError(f"model file {path} has format version {version}, this brl reads "
+                                    f"{COMMAND_FORMAT_VERSION}")
+            if names != list(BRANCH_NAMES):
+                raise BrlInputError(f"model file {path} has branches {names}, expected {list(BRANCH_NAMES)}")
+            branches = []
+            for name in names:
+                branches.append(BayesianAgent._from_npz(_Prefixed(npz, f"{name}."), f"{path} (branch {name})"))
+        return cls.from_branches(branches, bootstrap)
+
+
+class _Prefixed:
+    """The entries of an open .npz under a key prefix, with the `files` / `[]` interface `_from_npz` reads."""
+
+    def __init__(self, npz: Any, prefix: str) -> None:
+        self._npz = npz
+        self._prefix = prefix
+        self.files = [k[len(prefix):] for k in npz.files if k.startswith(prefix)]
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return self._npz[self._prefix + key]
+
+
+def is_command_model(path: str | os.PathLike[str]) -> bool:
+    """Whether a model file holds a command-conditioned agent (False for lane-keeping models and unreadable files)."""
+    try:
+        with np.load(os.fspath(path), allow_pickle=False) as npz:
+            return "kind" in npz.files
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, AttributeError, TypeError):
+        return False

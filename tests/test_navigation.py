@@ -1,0 +1,185 @@
+"""Navigation (issue 20): planner routes, route commands and the route-following reward, the command-conditioned
+agent, its training, its model file and the bench's task checks."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from brlcli.agent import BayesianAgent
+from brlcli.agent.command import CommandAgent, is_command_model
+from brlcli.bench.suites import build_suite
+from brlcli.errors import BrlInputError
+from brlcli.reward import RouteRewardParams, route_terms
+from brlcli.sim.gym_env import DrivingEnv
+from brlcli.sim.navroutes import JUNCTION_KINDS, junction_routes, validation_routes
+from brlcli.sim.roadnet import Command, RoadNetwork
+from brlcli.sim.town import load_town
+from brlcli.train import LOG_COLUMNS, TrainConfig, train_run
+
+
+@pytest.fixture(scope="module")
+def net01() -> RoadNetwork:
+    return RoadNetwork(load_town("town01"))
+
+
+def test_junction_routes_take_exactly_their_turn(net01: RoadNetwork) -> None:
+    routes = junction_routes(net01)
+    connectors = [p for p in net01.paths if p.kind == "connector"]
+    assert len(routes) == 2 * len(connectors) and {r.kind for r in routes} == set(JUNCTION_KINDS)
+    expected = {"turn_left": Command.TURN_LEFT, "turn_right": Command.TURN_RIGHT, "go_straight": Command.GO_STRAIGHT}
+    for r in routes[::7]:
+        route = net01.route(r.start, r.goal)
+        assert [cmd for _a, _b, cmd in route.commands] == [expected[r.kind]], r.name
+
+
+def test_validation_routes_are_seeded_multi_junction_routes(net01: RoadNetwork) -> None:
+    a, b = validation_routes(net01, 5), validation_routes(net01, 5)
+    assert a == b and len(a) == 5
+    assert validation_routes(net01, 5, seed=1) != a
+    for r in a:
+        route = net01.route(r.start, r.goal)
+        assert 150 <= route.length_m <= 500 and len(route.commands) >= 2
+    specs = build_suite("nav_validation")
+    assert len(specs) == 16 and {s.town for s in specs} == {"town01", "town02"}
+    with pytest.raises(BrlInputError, match="unknown task"):
+        build_suite("nav_validation", tasks="straight")
+
+
+def test_route_terms() -> None:
+    p = RouteRewardParams()
+    assert route_terms(3.9, 3.9, 0.5, p) == {"progress": 0.0, "wrong_turn": 0.0}
+    assert route_terms(0.0, 3.9, 0.5, p)["progress"] == -p.r_progress
+    assert route_terms(-10.0, 3.9, 0.5, p)["progress"] == -2 * p.r_progress  # capped
+    assert route_terms(3.9, 3.9, -6.5, p)["wrong_turn"] == -p.r_wrong_turn
+    with pytest.raises(ValueError):
+        RouteRewardParams(wrong_turn_m=0.0)
+
+
+def test_going_straight_on_a_right_turn_is_a_wrong_turn_that_ends_the_episode() -> None:
+    env = DrivingEnv(routes="navigation", kinds=("turn_right",), route_reward=RouteRewardParams())
+    try:
+        _obs, info = env.reset(seed=0, options={"route": env.routes[0].name})
+        commands = [info["command"]]
+        for _ in range(60):
+            _obs, reward, terminated, truncated, info = env.step(0)  # forward only
+            commands.append(info["command"])
+            if terminated or truncated:
+                break
+        assert truncated and not terminated and info["wrong_turn"]
+        assert info["reward_terms"]["wrong_turn"] == -RouteRewardParams().r_wrong_turn
+        assert reward <= -RouteRewardParams().r_wrong_turn
+        assert commands[0] == Command.LANE_FOLLOW and Command.TURN_RIGHT in commands
+    finally:
+        env.close()
+
+
+def test_command_agent_learns_only_in_the_commanded_branch(tmp_path: Path) -> None:
+    agent = CommandAgent()
+    rng = np.random.default_rng(0)
+    s = rng.dirichlet(np.ones(30))
+    agent.set_command(int(Command.TURN_LEFT))
+    for _ in range(5):
+        agent.learn(s, 1, -20.0, s)
+    steps = [b.steps for b in agent.branches]
+    assert steps == [0, 5, 0, 0] and agent.branch == 1
+    agent.set_command(int(Command.REACH_GOAL))  # drives as follow lane
+    assert agent.branch == 0
+    path = tmp_path / "model.npz"
+    agent.save(path)
+    back = CommandAgent.load(path)
+    assert is_command_model(path)
+    for mine, theirs in zip(agent.branches, back.branches, strict=True):
+        assert np.array_equal(mine.Q, theirs.Q) and np.array_equal(mine.means, theirs.means)
+        assert mine.steps == theirs.steps and mine.tau == theirs.tau
+    with pytest.raises(BrlInputError, match="lacks the entry"):
+        BayesianAgent.load(path)
+    lane = tmp_path / "lane.npz"
+    BayesianAgent().save(lane)
+    assert not is_command_model(lane)
+    with pytest.raises(BrlInputError, match="lane-keeping model"):
+        CommandAgent.load(lane)
+
+
+def test_navigation_training_is_reproducible_resumable_and_logs_commands(tmp_path: Path) -> None:
+    cfg = TrainConfig(task="navigation", steps=150, seed=2, evaluate=False)
+    assert cfg.route_kinds == ("straight", "right_curve", "left_curve", *JUNCTION_KINDS)
+    train_run(cfg, tmp_path / "full")
+
+    class Stop(Exception):
+        pass
+
+    def kill_at_100(p) -> None:
+        if p.step >= 100:
+            raise Stop
+
+    with pytest.raises(Stop):
+        train_run(cfg, tmp_path / "cut", progress=kill_at_100)
+    train_run(cfg, tmp_path / "cut", resume=True)
+    for name in ("log.csv", "model.npz"):
+        assert (tmp_path / "cut" / name).read_bytes() == (tmp_path / "full" / name).read_bytes()
+    saved = json.loads((tmp_path / "full" / "config.json").read_text())["config"]
+    assert saved["task"] == "navigation"
+    lines = (tmp_path / "full" / "log.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    assert header == list(LOG_COLUMNS)
+    commands = {int(line.split(",")[header.index("command")]) for line in lines[1:]}
+    assert commands <= {0, 2, 3, 4, 5} and commands & {3, 4, 5}
+    summary = json.loads((tmp_path / "full" / "summary.json").read_text())["summary"]
+    assert sum(summary["components_per_branch"].values()) == summary["components"]
+    assert is_command_model(tmp_path / "full" / "model.npz")
+
+
+def test_task_choices_are_checked() -> None:
+    with pytest.raises(BrlInputError, match="unknown task"):
+        TrainConfig(task="racing")
+    with pytest.raises(BrlInputError, match="not navigation routes"):
+        TrainConfig(task="navigation", route_kinds=("roundabout",))
+    with pytest.raises(BrlInputError, match="not lane-keeping routes"):
+        TrainConfig(route_kinds=("turn_left",))
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "brlcli.cli", *args], capture_output=True, text=True, timeout=300)
+
+
+def test_bench_refuses_a_navigation_model_on_a_suite_without_commands(tmp_path: Path) -> None:
+    r = _cli("train", "--task", "navigation", "--steps", "40", "--no-evaluate", "--out", str(tmp_path / "m"))
+    assert r.returncode == 0, r.stderr
+    model = tmp_path / "m" / "seed_0"
+    for suite in ("paper", "validation"):
+        r = _cli("bench", "--suite", suite, "--model", str(model), "--out", str(tmp_path / suite))
+        assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "navigation" in r.stderr, r.stderr
+        assert not (tmp_path / suite).exists()
+    r = _cli("bench", "--suite", "nav_validation", "--model", str(model), "--episodes", "2",
+             "--out", str(tmp_path / "nv"))
+    assert r.returncode == 0, r.stderr
+    rows = [json.loads(line) for line in (tmp_path / "nv" / "results.jsonl").read_text().splitlines()]
+    assert len(rows) == 2 and all("navigation" in row["setting"] for row in rows)
+
+
+def test_a_command_change_bootstraps_from_the_next_branch(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    s, s_next = rng.dirichlet(np.ones(30)), rng.dirichlet(np.ones(30))
+    agent = CommandAgent()
+    agent.set_command(int(Command.LANE_FOLLOW))
+    for _ in range(3):  # the follow branch learns that every action is bad at s_next
+        for action in range(4):
+            agent.learn(s_next, action, -30.0, s_next)
+    agent.save(tmp_path / "a.npz")
+    own = CommandAgent.load(tmp_path / "a.npz", bootstrap="own-branch")
+    nxt = CommandAgent.load(tmp_path / "a.npz", bootstrap="next-branch")
+    v_follow, v_left = nxt.branches[0].value(s_next), nxt.branches[1].value(s_next)
+    assert v_follow < v_left
+    steps = []
+    for a in (own, nxt):
+        a.set_command(int(Command.TURN_LEFT))
+        steps.append(a.learn(s, 2, -1.0, s_next, next_command=int(Command.LANE_FOLLOW)))
+    gamma = nxt.branches[1].params.gamma
+    assert steps[1].td_error - steps[0].td_error == pytest.approx(gamma * (v_follow - v_left))
+    same = CommandAgent.load(tmp_path / "a.npz")
+    same.set_command(int(Command.TURN_LEFT))  # no command change: the branch's own value, whatever the rule
+    assert same.learn(s, 2, -1.0, s_next, next_command=int(Command.TURN_LEFT)).td_error == steps[0].td_error
