@@ -472,9 +472,7 @@ def bench(
             raise_input(f"--models is for brl model sets; give --agent {agent} one --model")
         pols = [PolicySpec(agent, name, opts) for name, opts in baseline_specs(agent, model, deploy, segnet)]
     for p in pols:  # load every model once here: a bad file fails before anything is written
-        if p.kind == "brl":
-            check_suite_task(suite, Path(p.options["model"]))
-        build_policy(p.kind, p.name, p.options)
+        check_suite_task(suite, build_policy(p.kind, p.name, p.options))
     if deploy == "estimated" and agent in ("brl", "mp", "dqn"):
         _segnet_notice(segnet)
     variants = {p.name: model_variant(Path(p.options["model"])) for p in pols if p.kind == "brl"}

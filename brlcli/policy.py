@@ -108,10 +108,10 @@ def model_task(model_path: Path) -> str:
     return str(_training_config(model_path).get("task", "lane-keeping"))
 
 
-def check_suite_task(suite: str, model_path: Path) -> None:
-    """A one-line error when a model cannot be benched on a suite (a navigation model on a suite without commands)."""
-    if model_task(model_path) == "navigation" and suite in COMMANDLESS_SUITES:
-        raise BrlInputError(f"model {model_path} was trained for navigation (route commands); the {suite} suite is "
+def check_suite_task(suite: str, policy: Any) -> None:
+    """A one-line error when a policy cannot be benched on a suite (a navigation model on a suite without commands)."""
+    if getattr(policy, "task", "lane-keeping") == "navigation" and suite in COMMANDLESS_SUITES:
+        raise BrlInputError(f"{policy.name} was trained for navigation (route commands); the {suite} suite is "
                             "lane keeping without commands: bench it on --suite corl2017, nocrash or nav_validation")
 
 

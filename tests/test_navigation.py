@@ -183,3 +183,16 @@ def test_a_command_change_bootstraps_from_the_next_branch(tmp_path: Path) -> Non
     same = CommandAgent.load(tmp_path / "a.npz")
     same.set_command(int(Command.TURN_LEFT))  # no command change: the branch's own value, whatever the rule
     assert same.learn(s, 2, -1.0, s_next, next_command=int(Command.TURN_LEFT)).td_error == steps[0].td_error
+
+
+def test_suite_task_check_applies_to_any_policy_with_a_task() -> None:
+    from brlcli.policy import check_suite_task
+
+    class NavPolicy:
+        name = "dqn/nav"
+        task = "navigation"
+
+    with pytest.raises(BrlInputError, match="without commands"):
+        check_suite_task("validation", NavPolicy())
+    check_suite_task("corl2017", NavPolicy())
+    check_suite_task("paper", object())  # a policy without a task drives lanes

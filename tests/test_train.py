@@ -168,7 +168,7 @@ def test_restarts_on_a_trap_and_resumes_bit_identical(tmp_path: Path) -> None:
     assert summary["final_attempt_steps"] == 90
     assert summary["steps"] == 90 + sum(r["attempt_steps"] for r in summary["restarts"])
     rows = (tmp_path / "full" / "log.csv").read_text().splitlines()[1:]
-    attempts = [int(r.rsplit(",", 1)[1]) for r in rows]
+    attempts = [int(r.split(",")[LOG_COLUMNS.index("attempt")]) for r in rows]
     assert attempts == sorted(attempts) and set(attempts) == set(range(n + 1)) and attempts.count(n) == 90
     agent = BayesianAgent.load(tmp_path / "full" / "model.npz")
     assert agent.steps == 90  # the model is the last attempt's, trained from scratch

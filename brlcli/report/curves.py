@@ -1,8 +1,10 @@
-"""Sample efficiency: learning curves (paper-suite success vs. environment steps) of BRL and deep RL runs.
+"""Sample efficiency: learning curves (greedy success vs. environment steps) of BRL and deep RL runs.
 
 Inputs are run directories holding `learning_curve.csv` (from `brl train --curve-every N` or `brl train-rl`), or
 directories of such runs (seed_0, seed_1, ...). Runs are grouped by learner: the deep RL algorithm named in the
-run's config.json (e.g. DQN), else BRL; and by training input (TG / TE).
+run's config.json (e.g. DQN), else BRL; by training input (TG / TE) and task (navigation runs are marked). Every
+curve of a report must come from the same evaluation suite (the paper suite for lane keeping, nav_validation for
+navigation).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ class CurveRun:
 
     learner: str
     name: str
+    suite: str
     env_steps: np.ndarray
     success: np.ndarray
     collision_free: np.ndarray
@@ -40,6 +43,8 @@ def _learner(run: Path) -> str:
     except json.JSONDecodeError:
         raise BrlInputError(f"{cfg_path} is not a brl run configuration") from None
     tag = {"gt": "TG", "estimated": "TE"}.get(str(cfg.get("input", "gt")), "T?")
+    if cfg.get("task", "lane-keeping") != "lane-keeping":
+        tag += f", {cfg['task']}"
     algo = cfg.get("algo")
     if algo:
         return f"{str(algo).upper()} ({tag})"
@@ -68,9 +73,27 @@ def load_curves(dirs: list[str | Path]) -> list[CurveRun]:
             name = f"{p.resolve().parent.name}/{p.resolve().name}"
             if name in runs:
                 raise BrlInputError(f"two learning curves are named {name}; give them distinct directories")
-            runs[name] = CurveRun(_learner(p), name, np.array([r["env_steps"] for r in rows]),
+            suites = {r["eval_suite"] for r in rows}
+            if len(suites) != 1:
+                raise BrlInputError(f"{p / CURVE_FILE} mixes evaluation suites ({', '.join(sorted(suites))})")
+            runs[name] = CurveRun(_learner(p), name, suites.pop(), np.array([r["env_steps"] for r in rows]),
                                   *(np.array([r[k] for r in rows]) for k in ("success", "collision_free", "score")))
+    found = {r.suite for r in runs.values()}
+    if len(found) > 1:
+        raise BrlInputError(f"the learning curves come from different suites ({', '.join(sorted(found))}); report "
+                            "them separately")
     return sorted(runs.values(), key=lambda r: (r.learner, r.name))
+
+
+SUITE_TEXT = {"paper": ("paper-suite", "the paper suite's 66 lane-keeping episodes"),
+              "nav_validation": ("nav_validation", "the nav_validation suite's 16 navigation episodes (planner routes "
+                                                   "through junctions in town01 and town02, route commands)")}
+"""How the tables and plots name a curve's evaluation suite: (short, long)."""
+
+
+def _suite(runs: list[CurveRun]) -> tuple[str, str]:
+    suite = runs[0].suite if runs else "paper"
+    return SUITE_TEXT.get(suite, (suite, f"the {suite} suite's episodes"))
 
 
 def mean_curve(runs: list[CurveRun]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -89,8 +112,8 @@ def _groups(runs: list[CurveRun]) -> dict[str, list[CurveRun]]:
 
 def _reference(groups: dict[str, list[CurveRun]]) -> tuple[str, float] | None:
     """The BRL learner (GT input first) and its final mean success: the level the others must reach."""
-    for learner in ("BRL (TG)", "BRL (TE)"):
-        if learner in groups:
+    brl = [k for k in groups if k.startswith("BRL")]
+    for learner in sorted(brl, key=lambda k: ("(TG" not in k, k)):
             steps, mean, _ = mean_curve(groups[learner])
             if steps.size:
                 return learner, float(mean[-1])
@@ -102,7 +125,8 @@ def sample_efficiency_table(runs: list[CurveRun]) -> Table:
     groups = _groups(runs)
     ref = _reference(groups)
     target_col = f"Env steps to {ref[0]} final success" if ref else "Env steps to BRL's final success"
-    t = Table("sample_efficiency", "Sample efficiency: paper-suite success against environment steps",
+    short, long = _suite(runs)
+    t = Table("sample_efficiency", f"Sample efficiency: {short} success against environment steps",
               ["Learner", "Runs", "Env steps (last eval)", "Final success [%]", "Final success std [%]",
                "Best mean success [%]", "At env steps", target_col], label_columns=1)
     for learner, group in groups.items():
@@ -119,8 +143,7 @@ def sample_efficiency_table(runs: list[CurveRun]) -> Table:
                pct(float(mean[best])), count(int(steps[best])),
                count(reach) if reach is not None else Cell.of("not reached" if ref else "–")])
     t.notes = ["An environment step is one decision (an action held for 7 simulator frames, 0.7 s). Success: share of "
-               "the paper suite's 66 lane-keeping episodes reaching the goal, greedy policy, mean over the learner's "
-               "runs at each evaluated step."]
+               f"{long} reaching the goal, greedy policy, mean over the learner's runs at each evaluated step."]
     if ref is not None:
         t.notes.append(f"Target: the final mean success of {ref[0]}, {100 * ref[1]:.1f} %; 'not reached' means no "
                        "evaluated step's mean success reached it within the run's budget.")
@@ -145,11 +168,12 @@ def curve_figure(runs: list[CurveRun]) -> bytes:
         ax.axhline(100 * ref[1], color="black", ls="--", lw=1, label=f"{ref[0]} final mean success")
     ax.set_xscale("log")
     ax.set_xlabel("environment steps (decisions), log scale")
-    ax.set_ylabel("paper-suite success [%]")
+    short, long = _suite(runs)
+    ax.set_ylabel(f"{short} success [%]")
     ax.set_ylim(-2, 102)
     ax.grid(alpha=0.3, which="both")
     ax.legend(loc="lower right", fontsize=9)
-    ax.set_title("Sample efficiency: greedy success on the paper's test suite", fontsize=12)
+    ax.set_title(f"Sample efficiency: greedy success on {long.split(' (')[0]}", fontsize=12)
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100, metadata={"Software": None})
@@ -160,5 +184,5 @@ def curves_section(runs: list[CurveRun]) -> Section:
     """The report section (the figure is added by the caller when plots are made)."""
     learners = ", ".join(f"{k} ({len(v)} runs)" for k, v in _groups(runs).items())
     return Section("Sample efficiency (learning curves)",
-                   f"Greedy success on the paper suite during training, per learner: {learners}.",
+                   f"Greedy success on {_suite(runs)[1]} during training, per learner: {learners}.",
                    [sample_efficiency_table(runs)])
