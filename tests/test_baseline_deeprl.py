@@ -200,3 +200,28 @@ def test_cli_trains_refuses_to_overwrite_and_rejects_bad_options(tmp_path: Path)
         r = brl(*bad)
         assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr, r.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_navigation_dqn_sees_the_command_and_curves_on_nav_validation(tmp_path: Path, monkeypatch) -> None:
+    import brlcli.curve as curve
+
+    cfg = DeepRLConfig(**{**TINY, "task": "navigation", "eval_suite": "auto"})
+    assert cfg.evaluation_suite == "nav_validation" and cfg.state_dim == 34
+    with pytest.raises(BrlInputError, match="does not fit"):
+        DeepRLConfig(task="navigation", eval_suite="paper")
+    env = drl._make_env(cfg)
+    try:
+        obs, info = env.reset(seed=0)
+        assert obs.shape == (34,) and obs[30:].sum() == 1.0 and env.unwrapped.route_reward is not None
+        assert obs[30 + int(drl.command_branch(info["command"]))] == 1.0
+    finally:
+        env.close()
+    one = build_suite("nav_validation")[:1]
+    monkeypatch.setattr(curve, "build_suite", lambda suite: one)
+    train_deep_rl(cfg, tmp_path / "nav")
+    rows = read_curve(tmp_path / "nav" / CURVE_FILE)
+    assert [r["eval_suite"] for r in rows] == ["nav_validation", "nav_validation"]
+    net, meta = load_model(tmp_path / "nav")
+    assert net[0].in_features == 34 and meta["train"]["task"] == "navigation"
+    policy = drl.DeepRLPolicy("dqn/nav", str(tmp_path / "nav" / "drl.pt"))
+    assert policy.uses_command and policy.task == "navigation" and "navigation" in policy.setting

@@ -210,8 +210,9 @@ def assemble(results: Results, runs: list[TrainingRun], plots: bool, curves: lis
         section = cv.curves_section(curves)
         if plots:
             images["learning_curves.png"] = lambda: cv.curve_figure(curves)
+            suite_text = cv.SUITE_TEXT.get(curves[0].suite, ("", "its suite"))[1].split(" (")[0]
             section.figures.append(tb.Figure("learning_curves.png", "Sample efficiency",
-                                             "Mean greedy success on the paper suite against environment steps (log "
+                                             f"Mean greedy success on {suite_text} against environment steps (log "
                                              "scale), ± 1 std over runs; one line per learner."))
         sections.append(section)
     return {"sections": sections, "notes": notes, "images": images, "summary": summary}
