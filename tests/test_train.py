@@ -32,10 +32,13 @@ def test_same_seed_gives_identical_log_and_model(tmp_path: Path) -> None:
     assert cfg_saved["config"]["seed"] == 4 and "git_commit" in cfg_saved and "brl_version" in cfg_saved
 
 
-@pytest.mark.parametrize("params", [{}, {"step_size": "action-visits", "exploration": "posterior"}])
-def test_interrupted_run_resumes_bit_identical(tmp_path: Path, params: dict) -> None:
-    """Also with per-episode posterior draws: they come from the run's generator after each reset."""
-    cfg = TrainConfig(steps=150, seed=1, evaluate=False, params={**TrainConfig().params, **params})
+@pytest.mark.parametrize("params, task", [({}, "lane-keeping"),
+                                          ({"step_size": "action-visits", "exploration": "posterior"}, "lane-keeping"),
+                                          ({}, "navigation")])
+def test_interrupted_run_resumes_bit_identical(tmp_path: Path, params: dict, task: str) -> None:
+    """Also with per-episode posterior draws (they come from the run's generator after each reset) and for the
+    command-conditioned agent of the navigation task."""
+    cfg = TrainConfig(steps=150, seed=1, evaluate=False, params={**TrainConfig().params, **params}, task=task)
     train_run(cfg, tmp_path / "full")
 
     class Stop(Exception):

@@ -259,19 +259,25 @@ def _log_argmax(ll: np.ndarray, pma: np.ndarray, a: int) -> int:
 
 
 @_jit
+def _mixture_max(ll: np.ndarray, q: np.ndarray, n: int) -> float:
+    """max_a sum_m phi_m Q[a, m], phi the normalised likelihoods of ll[:n]."""
+    phi = _normalised(_shifted(ll, n))
+    best = -math.inf
+    for a in range(q.shape[0]):
+        v = 0.0
+        for m in range(n):
+            v += phi[m] * q[a, m]
+        if v > best:
+            best = v
+    return best
+
+
+@_jit
 def next_value(ll: np.ndarray, q: np.ndarray, n: int, over_actions: bool, mixture: bool) -> float:
     """The value the TD target of `decide` takes at a next state with log-likelihoods ll[:n]: Q[a', m'] (eqs. 6-7),
     or with `mixture` max_a sum_m phi_m Q[a, m]."""
     if mixture:
-        phi = _normalised(_shifted(ll, n))
-        best = -math.inf
-        for a in range(q.shape[0]):
-            v = 0.0
-            for m in range(n):
-                v += phi[m] * q[a, m]
-            if v > best:
-                best = v
-        return best
+        return _mixture_max(ll, q, n)
     pma, p_a, _ = tables(q, n, over_actions)
     a_next = _argmax(_p_action(_shifted(ll, n), pma, p_a))
     return q[a_next, _log_argmax(ll, pma, a_next)]
@@ -295,15 +301,8 @@ def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.nd
             m_t = m
     lik = _shifted(ll_t, n)
     if mixture:
-        phi_next = _normalised(_shifted(ll_next, n))
+        best = _mixture_max(ll_next, q, n)
         phi_t = _normalised(lik)
-        best = -math.inf
-        for a in range(q.shape[0]):
-            v = 0.0
-            for m in range(n):
-                v += phi_next[m] * q[a, m]
-            if v > best:
-                best = v
         q_t = 0.0
         for m in range(n):
             q_t += phi_t[m] * q[a_t, m]

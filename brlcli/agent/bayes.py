@@ -491,11 +491,10 @@ class BayesianAgent:
 
     # -- persistence -----------------------------------------------------------------------------------------
 
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the model to `path` (exactly that name) as a versioned .npz, atomically via a temp file."""
-        path = os.fspath(path)
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The model's arrays as `save` writes them (format version, parameters, components, schedules)."""
         n = self._n
-        arrays = {
+        return {
             "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
             "params_json": np.array(json.dumps(self._params.to_dict(), sort_keys=True)),
             "state_dim": np.array(self._dim, dtype=np.int64),
@@ -512,23 +511,16 @@ class BayesianAgent:
             "rho": np.array(self._rho),
             "steps": np.array(self._steps, dtype=np.int64),
         }
-        directory = os.path.dirname(os.path.abspath(path))
-        if not os.path.isdir(directory):
-            raise BrlInputError(f"cannot write model file {path}: directory {directory} does not exist")
-        save_npz(path, arrays)
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write the model to `path` (exactly that name) as a versioned .npz, atomically via a temp file."""
+        save_model_arrays(path, self.to_arrays())
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> BayesianAgent:
         """Read a model written by `save`; a missing, foreign, corrupt or wrong-version file raises BrlInputError."""
         path = os.fspath(path)
-        try:
-            npz = np.load(path, allow_pickle=False)
-        except FileNotFoundError:
-            raise BrlInputError(f"model file {path} does not exist") from None
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise BrlInputError(f"model file {path} is not a brl model (.npz): {_one_line(exc)}") from None
-        if not isinstance(npz, np.lib.npyio.NpzFile):
-            raise BrlInputError(f"model file {path} is a single .npy array, not a brl model (.npz)")
+        npz = open_model_npz(path)
         with npz:
             try:
                 return cls._from_npz(npz, path)
@@ -620,6 +612,28 @@ class BayesianAgent:
         agent._alpha, agent._tau, agent._rho = schedule["alpha"], schedule["tau"], schedule["rho"]
         agent._steps = int(steps)
         return agent
+
+
+def save_model_arrays(path: str | os.PathLike[str], arrays: dict[str, np.ndarray]) -> None:
+    """Write a model's arrays to `path` as an .npz, atomically; a missing directory is a BrlInputError."""
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        raise BrlInputError(f"cannot write model file {path}: directory {directory} does not exist")
+    save_npz(path, arrays)
+
+
+def open_model_npz(path: str) -> Any:
+    """The open .npz of a model file (never unpickling); a missing, foreign or corrupt file is a BrlInputError."""
+    try:
+        npz = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise BrlInputError(f"model file {path} does not exist") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise BrlInputError(f"model file {path} is not a brl model (.npz): {_one_line(exc)}") from None
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise BrlInputError(f"model file {path} is a single .npy array, not a brl model (.npz)")
+    return npz
 
 
 def _one_line(exc: BaseException) -> str:

@@ -23,10 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from brlcli.agent.bayes import BayesianAgent, LearnStep, _one_line
+from brlcli.agent.bayes import BayesianAgent, LearnStep, _one_line, open_model_npz, save_model_arrays
 from brlcli.agent.params import BRLParams
 from brlcli.errors import BrlInputError
-from brlcli.npzio import save_npz
 from brlcli.sim.roadnet import BRANCH_NAMES, command_branch
 
 COMMAND_FORMAT_VERSION = 1
@@ -128,33 +127,18 @@ class CommandAgent:
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write every branch into one versioned .npz, atomically."""
-        import tempfile
-
         arrays: dict[str, np.ndarray] = {"format_version": np.array(COMMAND_FORMAT_VERSION, dtype=np.int64),
                                          "kind": np.array(COMMAND_KIND), "branches": np.array(BRANCH_NAMES)}
-        with tempfile.TemporaryDirectory() as tmp:
-            for name, b in zip(BRANCH_NAMES, self.branches, strict=True):
-                b.save(os.path.join(tmp, f"{name}.npz"))
-                with np.load(os.path.join(tmp, f"{name}.npz"), allow_pickle=False) as npz:
-                    arrays.update({f"{name}.{k}": npz[k] for k in npz.files})
-        directory = os.path.dirname(os.path.abspath(os.fspath(path)))
-        if not os.path.isdir(directory):
-            raise BrlInputError(f"cannot write model file {path}: directory {directory} does not exist")
-        save_npz(os.fspath(path), arrays)
+        for name, b in zip(BRANCH_NAMES, self.branches, strict=True):
+            arrays.update({f"{name}.{k}": v for k, v in b.to_arrays().items()})
+        save_model_arrays(path, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], bootstrap: str = "next-branch") -> CommandAgent:
         """Read a model written by `save` (the bootstrap rule is a training choice, not stored); a lane-keeping model,
         a foreign or corrupt file raise BrlInputError."""
         path = os.fspath(path)
-        try:
-            npz = np.load(path, allow_pickle=False)
-        except FileNotFoundError:
-            raise BrlInputError(f"model file {path} does not exist") from None
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise BrlInputError(f"model file {path} is not a brl model (.npz): {_one_line(exc)}") from None
-        if not isinstance(npz, np.lib.npyio.NpzFile):
-            raise BrlInputError(f"model file {path} is a single .npy array, not a brl model (.npz)")
+        npz = open_model_npz(path)
         with npz:
             if "kind" not in npz.files:
                 raise BrlInputError(f"model file {path} is a lane-keeping model, not a command-conditioned one")
