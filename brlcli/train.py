@@ -115,6 +115,9 @@ class TrainConfig:
     restart_offroad_above: float | None = None  # outside the paper: ... or when the share of those steps with part of
     # the car off the road is above this (None: the reward test only; needs restart_below)
     command_bootstrap: str = "next-branch"  # navigation only: brlcli.agent.command.BOOTSTRAPS
+    branch_restart_below: list[float] | None = None  # navigation only, outside the paper: per-branch trap test
+    # (follow, left, right, straight): at RESTART_CHECKS of the steps, a branch whose mean reward per step over its
+    # steps among the last RESTART_WINDOW of the run's steps is below its threshold restarts from a fresh agent
     r_progress: float = 5.0  # navigation only: route-following reward terms (RouteRewardParams)
     r_wrong_turn: float = 40.0
     wrong_turn_m: float = 6.0
@@ -125,6 +128,10 @@ class TrainConfig:
             raise BrlInputError(f"unknown task '{self.task}'; choose one of {', '.join(TASKS)}")
         if self.command_bootstrap not in ("next-branch", "own-branch"):
             raise BrlInputError(f"command_bootstrap must be next-branch or own-branch, not '{self.command_bootstrap}'")
+        if self.branch_restart_below is not None and (self.task != "navigation" or len(self.branch_restart_below)
+                                                      != 4):
+            raise BrlInputError("branch_restart_below needs --task navigation and four thresholds (follow, left, "
+                                "right, straight)")
         if self.route_kinds is None:
             object.__setattr__(self, "route_kinds", TASK_ROUTE_KINDS[self.task])
         bad = [k for k in self.route_kinds if k not in TASK_ROUTE_KINDS[self.task]]
@@ -351,6 +358,21 @@ def _trapped(cfg: TrainConfig, step: int, stats: dict) -> bool:
     return bool(np.mean(stats["window"]) < cfg.restart_below or off)
 
 
+def _trapped_branches(cfg: TrainConfig, step: int, stats: dict) -> list[int]:
+    """The per-branch trap test at an episode's end: the branches to restart (and records a passed check)."""
+    done = stats["branch_checks_done"]
+    if cfg.branch_restart_below is None or done >= len(RESTART_CHECKS) or step < RESTART_CHECKS[done] * cfg.steps:
+        return []
+    stats["branch_checks_done"] = done + 1
+    window = np.asarray(stats["branch_window"], dtype=np.float64).reshape(-1, 2)
+    out = []
+    for k, threshold in enumerate(cfg.branch_restart_below):
+        rewards = window[window[:, 0] == k, 1]
+        if rewards.size and rewards.mean() < threshold:
+            out.append(k)
+    return out
+
+
 def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
               progress: Callable[[Progress], None] | None = None) -> dict[str, Any]:
     """Train one agent; returns the summary. Resumable from the last finished episode."""
@@ -387,6 +409,9 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     stats.setdefault("window", [])
     stats.setdefault("window_offroad", [])
     stats.setdefault("restarts", [])
+    stats.setdefault("branch_window", [])  # [branch, reward] of the last RESTART_WINDOW of steps (branch restarts)
+    stats.setdefault("branch_checks_done", 0)
+    stats.setdefault("branch_restarts", [])
     curve = _Curve(run_dir, cfg, env, step) if cfg.curve_every else None
     nav = cfg.task == "navigation"
     t0 = time.perf_counter() - stats["wall_s"]
@@ -422,6 +447,10 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                         stats["window_offroad"].append(int(info["measurements"]["intersection_offroad"] > 0.0))
                         if len(stats["window"]) > max(1, round(RESTART_WINDOW * cfg.steps)):
                             del stats["window"][0], stats["window_offroad"][0]
+                    if cfg.branch_restart_below is not None:
+                        stats["branch_window"].append([agent.branch, reward])
+                        if len(stats["branch_window"]) > max(1, round(RESTART_WINDOW * cfg.steps)):
+                            del stats["branch_window"][0]
                     recent = [*recent, reward][-100:]
                     if curve is not None and step % cfg.curve_every == 0:
                         curve.evaluate(agent, step)
@@ -447,6 +476,11 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                 stats.update(attempt=stats["attempt"] + 1, attempt_start=step, checks_done=0, window=[],
                              window_offroad=[])
                 agent = cfg.new_agent()
+            for k in _trapped_branches(cfg, step, stats):
+                window = np.asarray(stats["branch_window"]).reshape(-1, 2)
+                stats["branch_restarts"].append({"step": step, "branch": k,
+                                                 "mean_reward": float(window[window[:, 0] == k, 1].mean())})
+                agent.branches[k] = BayesianAgent(state_dim=30, n_actions=4, params=cfg.agent_params())
             stats["wall_s"] = time.perf_counter() - t0
             ckpt.save(agent, rng, step, episode, step, stats)
     wall = time.perf_counter() - t0 - (curve.eval_s if curve is not None else 0.0)  # learning time only
@@ -463,6 +497,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     env.close()
     if curve is not None:
         curve.close()
+    if cfg.branch_restart_below is not None:
+        summary["branch_restarts"] = stats["branch_restarts"]
     if nav:
         summary["components_per_branch"] = dict(zip(("follow", "left", "right", "straight"),
                                                      agent.components_per_branch, strict=True))

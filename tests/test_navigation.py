@@ -131,6 +131,10 @@ def test_task_choices_are_checked() -> None:
         TrainConfig(task="navigation", route_kinds=("roundabout",))
     with pytest.raises(BrlInputError, match="not lane-keeping routes"):
         TrainConfig(route_kinds=("turn_left",))
+    with pytest.raises(BrlInputError, match="four thresholds"):
+        TrainConfig(branch_restart_below=[-5.0] * 4)
+    with pytest.raises(BrlInputError, match="four thresholds"):
+        TrainConfig(task="navigation", branch_restart_below=[-5.0])
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:

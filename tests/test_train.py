@@ -32,13 +32,15 @@ def test_same_seed_gives_identical_log_and_model(tmp_path: Path) -> None:
     assert cfg_saved["config"]["seed"] == 4 and "git_commit" in cfg_saved and "brl_version" in cfg_saved
 
 
-@pytest.mark.parametrize("params, task", [({}, "lane-keeping"),
-                                          ({"step_size": "action-visits", "exploration": "posterior"}, "lane-keeping"),
-                                          ({}, "navigation")])
-def test_interrupted_run_resumes_bit_identical(tmp_path: Path, params: dict, task: str) -> None:
-    """Also with per-episode posterior draws (they come from the run's generator after each reset) and for the
-    command-conditioned agent of the navigation task."""
-    cfg = TrainConfig(steps=150, seed=1, evaluate=False, params={**TrainConfig().params, **params}, task=task)
+@pytest.mark.parametrize("params, extra", [({}, {}),
+                                           ({"step_size": "action-visits", "exploration": "posterior"}, {}),
+                                           ({}, {"task": "navigation"}),
+                                           ({}, {"task": "navigation", "branch_restart_below": [10.0] * 4})])
+def test_interrupted_run_resumes_bit_identical(tmp_path: Path, params: dict, extra: dict) -> None:
+    """Also with per-episode posterior draws (they come from the run's generator after each reset), for the
+    command-conditioned agent of the navigation task, and with its per-branch restarts (every branch restarts at
+    both checks when every threshold is above every reward)."""
+    cfg = TrainConfig(steps=150, seed=1, evaluate=False, params={**TrainConfig().params, **params}, **extra)
     train_run(cfg, tmp_path / "full")
 
     class Stop(Exception):
@@ -53,8 +55,12 @@ def test_interrupted_run_resumes_bit_identical(tmp_path: Path, params: dict, tas
     assert not (tmp_path / "cut" / "model.npz").exists()
     with pytest.raises(BrlInputError):
         train_run(cfg, tmp_path / "cut")  # refuses to overwrite without resume
-    train_run(cfg, tmp_path / "cut", resume=True)
+    summary = train_run(cfg, tmp_path / "cut", resume=True)["summary"]
     assert _files(tmp_path / "cut") == _files(tmp_path / "full")
+    if "branch_restart_below" in extra:
+        restarts = summary["branch_restarts"]
+        assert {r["step"] >= 50 for r in restarts} == {True} and len({r["step"] for r in restarts}) == 2
+        assert restarts and all(r["mean_reward"] < 10.0 for r in restarts)
 
 
 def test_posterior_draws_change_the_actions_and_counts_are_stored(tmp_path: Path) -> None:
