@@ -115,6 +115,18 @@ def table_bytes(out: Path) -> dict[str, bytes]:
 # Metrics on hand-made episodes
 
 
+def _report_of(tmp_path: Path, suite: str, episodes: list[dict]) -> Path:
+    """A csv + md report of hand-made results records of one suite; returns its directory."""
+    path = tmp_path / suite
+    path.mkdir()
+    (path / "bench.json").write_text(json.dumps({"config": {"suite": suite, "suite_version": 1,
+                                                            "town_versions": TOWNS}}))
+    (path / "results.jsonl").write_text("".join(json.dumps(e) + "\n" for e in episodes))
+    out = tmp_path / "rep"
+    build_report([path], out=out, formats="csv,md")
+    return out
+
+
 def test_score_and_either_on_hand_made_episodes(tmp_path: Path) -> None:
     eps = [
         paper_episode("m/a", "TGDG", 0, steps=10, off=2, success=True, collided=False, km=0.1),
@@ -188,13 +200,7 @@ def test_corl_success_over_weathers_and_km_between_infractions(tmp_path: Path) -
                                                     "collision_vehicles": 0, "collision_pedestrians": 0}}
 
     eps = [ep(0, 1, True, 1), ep(1, 1, False, 0), ep(2, 3, True, 0), ep(3, 4, False, 2, "new_town")]
-    path = tmp_path / "corl"
-    path.mkdir()
-    (path / "bench.json").write_text(json.dumps({"config": {"suite": "corl2017", "suite_version": 1,
-                                                            "town_versions": TOWNS}}))
-    (path / "results.jsonl").write_text("".join(json.dumps(e) + "\n" for e in eps))
-    out = tmp_path / "rep"
-    build_report([path], out=out, formats="csv,md")
+    out = _report_of(tmp_path, "corl2017", eps)
     success = read_csv(out / "tables" / "corl_success.csv")
     ours = next(r for r in success if r["Task"] == "Straight" and r["Source"] == "ours")
     assert float(ours["Training"]) == pytest.approx(75.0)  # weather 1: 1/2, weather 3: 1/1 -> mean 0.75, not 2/3
@@ -223,13 +229,7 @@ def test_nocrash_success_posteriors_and_outcomes(tmp_path: Path) -> None:
 
     eps = [ep(0, "empty", True, False), ep(1, "empty", True, False), ep(2, "dense", False, True),
            ep(3, "dense", True, False), ep(4, "dense", False, False), ep(5, "regular", True, False, "new_town")]
-    path = tmp_path / "nocrash"
-    path.mkdir()
-    (path / "bench.json").write_text(json.dumps({"config": {"suite": "nocrash", "suite_version": 1,
-                                                            "town_versions": TOWNS}}))
-    (path / "results.jsonl").write_text("".join(json.dumps(e) + "\n" for e in eps))
-    out = tmp_path / "rep"
-    build_report([path], out=out, formats="csv,md")
+    out = _report_of(tmp_path, "nocrash", eps)
     rows = {r["Traffic"]: r for r in read_csv(out / "tables" / "nocrash_success.csv")}
     assert float(rows["Dense"]["Training"]) == pytest.approx(100.0 / 3, abs=1e-3)
     assert float(rows["Empty"]["Training"]) == 100.0 and rows["Empty"]["New town"] == ""
