@@ -70,13 +70,15 @@ by more than the standard error of the difference (docs/lane-keeping-study.md, r
 
 TASK_PRESETS: dict[str, dict[str, Any]] = {
     "lane-keeping": {},
-    "navigation": {"steps": 27000, "restart_below": None, "params": {"new_q": "nearest"}},
+    "navigation": {"steps": 27000, "restart_below": None, "params": {"new_q": "nearest"},
+                   "branch_restart_below": [-5.0, -9.0, -9.0, -9.0]},
 }
 """Overrides a task makes on top of the variant's preset (an option, --config or --set goes on top), chosen on the
 nav_validation suite (docs/navigation-study.md): navigation trains four branches, two thirds of the episodes at
 junctions, so six times the paper's t_max; without the trap restart, whose reward threshold is the lane-keeping
 task's; a new component starts from its nearest component's action values (`new_q = "nearest"`) rather than the
-optimistic constant, which otherwise makes an untried junction state look better than a known one."""
+optimistic constant, which otherwise makes an untried junction state look better than a known one; and a trap
+restart per branch (follow -5, turns -9), which restarts only a trapped branch."""
 
 
 DEFAULT_AGENT_OVERRIDES: dict[str, Any] = {"init_scatter": 1e-3}

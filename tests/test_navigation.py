@@ -110,8 +110,11 @@ def test_navigation_training_is_reproducible_and_logs_commands(tmp_path: Path) -
     assert cfg.route_kinds == ("straight", "right_curve", "left_curve", *JUNCTION_KINDS)
     train_run(cfg, tmp_path / "full")
     train_run(cfg, tmp_path / "again")
+    never = TrainConfig(task="navigation", steps=150, seed=2, evaluate=False, branch_restart_below=[-1e9] * 4)
+    train_run(never, tmp_path / "never")  # a per-branch trap test that never fires changes nothing
     for name in ("log.csv", "model.npz"):
         assert (tmp_path / "again" / name).read_bytes() == (tmp_path / "full" / name).read_bytes()
+        assert (tmp_path / "never" / name).read_bytes() == (tmp_path / "full" / name).read_bytes()
     saved = json.loads((tmp_path / "full" / "config.json").read_text())["config"]
     assert saved["task"] == "navigation"
     lines = (tmp_path / "full" / "log.csv").read_text().splitlines()
