@@ -30,6 +30,7 @@ from brlcli.segnet import check_input_source, labeler_for
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import ACTION_NAMES, DrivingEnv
 from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
+from brlcli.sim.roadnet import BRANCH_NAMES
 from brlcli.sim.weather import get_weather
 
 LOG_COLUMNS = (
@@ -128,7 +129,9 @@ class TrainConfig:
         check_input_source(self.input, "--input")
         if self.task not in TASKS:
             raise BrlInputError(f"unknown task '{self.task}'; choose one of {', '.join(TASKS)}")
-        if self.command_bootstrap not in ("next-branch", "own-branch"):
+        from brlcli.agent.command import BOOTSTRAPS
+
+        if self.command_bootstrap not in BOOTSTRAPS:
             raise BrlInputError(f"command_bootstrap must be next-branch or own-branch, not '{self.command_bootstrap}'")
         if self.branch_restart_below is not None and (self.task != "navigation" or len(self.branch_restart_below)
                                                       != 4):
@@ -502,7 +505,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     if cfg.branch_restart_below is not None:
         summary["branch_restarts"] = stats["branch_restarts"]
     if nav:
-        summary["components_per_branch"] = dict(zip(("follow", "left", "right", "straight"),
+        summary["components_per_branch"] = dict(zip(BRANCH_NAMES,
                                                      agent.components_per_branch, strict=True))
     if cfg.evaluate and nav:
         summary["eval"] = evaluate_navigation(agent, cfg)

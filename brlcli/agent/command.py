@@ -40,21 +40,20 @@ class CommandAgent:
 
     def __init__(self, state_dim: int = 30, n_actions: int = 4, params: BRLParams | None = None,
                  bootstrap: str = "next-branch") -> None:
+        self._setup([BayesianAgent(state_dim, n_actions, params) for _ in BRANCH_NAMES], bootstrap)
+
+    def _setup(self, branches: list[BayesianAgent], bootstrap: str) -> None:
         if bootstrap not in BOOTSTRAPS:
             raise ValueError(f"bootstrap must be one of {', '.join(BOOTSTRAPS)}, got {bootstrap!r}")
-        self.branches = [BayesianAgent(state_dim, n_actions, params) for _ in BRANCH_NAMES]
+        self.branches = list(branches)
         self._branch = 0
         self.bootstrap = bootstrap
 
     @classmethod
     def from_branches(cls, branches: list[BayesianAgent], bootstrap: str = "next-branch") -> CommandAgent:
         """An agent made of existing branches (in BRANCH_NAMES order)."""
-        if bootstrap not in BOOTSTRAPS:
-            raise ValueError(f"bootstrap must be one of {', '.join(BOOTSTRAPS)}, got {bootstrap!r}")
         agent = cls.__new__(cls)
-        agent.branches = list(branches)
-        agent._branch = 0
-        agent.bootstrap = bootstrap
+        agent._setup(branches, bootstrap)
         return agent
 
     def set_command(self, command: int) -> None:
