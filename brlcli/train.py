@@ -6,6 +6,9 @@ Layout of a run directory:
     model.npz        the trained agent (written at the end)
     summary.json     totals and the greedy evaluation on the town's validation routes
     checkpoint/      agent + generator state at the last finished episode (resume restarts from there)
+    learning_curve.csv  greedy evaluations every `curve_every` steps (when set)
+    model_best.npz   with `keep_best`: the evaluated agent with the best validation figures so far (model.npz is
+                     its copy at the end; model_last.npz is the agent at the end of training)
 """
 
 from __future__ import annotations
@@ -124,6 +127,11 @@ class TrainConfig:
     r_progress: float = 5.0  # navigation only: route-following reward terms (RouteRewardParams)
     r_wrong_turn: float = 40.0
     wrong_turn_m: float = 6.0
+    junction_weight: float = 2.0  # navigation only: a junction kind's probability relative to a lane-keeping kind
+    junction_approaches_m: list[float] = field(default_factory=lambda: [25.0, 60.0])  # navigation only: where the
+    # junction routes start before their junction (m)
+    keep_best: bool = False  # navigation only, outside the paper: model.npz is the curve evaluation (nav_validation)
+    # with the highest success (ties: Score, then the later step), not the agent at the end (needs curve_every)
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
@@ -137,6 +145,13 @@ class TrainConfig:
                                                       != 4):
             raise BrlInputError("branch_restart_below needs --task navigation and four thresholds (follow, left, "
                                 "right, straight)")
+        if self.keep_best and (self.task != "navigation" or not self.curve_every):
+            raise BrlInputError("keep_best needs --task navigation and --curve-every N (it selects on nav_validation; "
+                                "lane keeping's curve is the paper suite, which is reported, not chosen on)")
+        if not (self.junction_weight > 0 and self.junction_approaches_m
+                and all(isinstance(a, int | float) and a > 0 for a in self.junction_approaches_m)):
+            raise BrlInputError("junction_weight must be > 0 and junction_approaches_m a non-empty list of distances "
+                                "> 0 (m)")
         if self.route_kinds is None:
             object.__setattr__(self, "route_kinds", TASK_ROUTE_KINDS[self.task])
         bad = [k for k in self.route_kinds if k not in TASK_ROUTE_KINDS[self.task]]
@@ -246,7 +261,9 @@ def _make_env(cfg: TrainConfig) -> DrivingEnv:
                       kinds=tuple(cfg.route_kinds or ()), reward=cfg.reward_params(), labeler=_labeler(cfg),
                       camera=cfg.camera(), offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
                       start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end,
-                      route_reward=cfg.route_reward())
+                      route_reward=cfg.route_reward(),
+                      junction_weight=cfg.junction_weight if cfg.task == "navigation" else None,
+                      junction_approaches_m=tuple(cfg.junction_approaches_m) if cfg.task == "navigation" else None)
 
 
 def _log_row(step: int, episode: int, decision: int, action: int, reward: float, terms: dict, learn: Any,
@@ -315,7 +332,8 @@ class _Curve:
         self.evaluator = SuiteEvaluator("nav_validation" if cfg.task == "navigation" else "paper")
         self.eval_s = 0.0
 
-    def evaluate(self, agent: Any, step: int) -> None:
+    def evaluate(self, agent: Any, step: int) -> dict[str, Any]:
+        """Evaluate the agent greedily at `step`, append the row to the curve file and return it."""
         from brlcli.curve import write_curve
 
         t0 = time.perf_counter()
@@ -326,6 +344,7 @@ class _Curve:
             agent._branch = branch
         write_curve(self.path, self.rows)
         self.eval_s += time.perf_counter() - t0
+        return self.rows[-1]
 
     def close(self) -> None:
         self.evaluator.close()
@@ -339,6 +358,17 @@ def greedy_policy(agent: Any, task: str, setting: str, labeler: Callable[[np.nda
     if task == "navigation":
         return StatePolicy("brl", setting, greedy_command_brl(agent), labeler, camera, uses_command=True)
     return StatePolicy("brl", setting, greedy_brl(agent), labeler, camera)
+
+
+def _better(row: dict[str, Any], best: dict[str, Any] | None) -> bool:
+    """keep_best's rule: higher validation success, then higher Score; a tie goes to the later evaluation."""
+    return best is None or (row["success"], row["score"]) >= (best["success"], best["score"])
+
+
+def _nav_eval(row: dict[str, Any]) -> dict[str, Any]:
+    """A curve row in the form of the summary's `eval` (evaluate_navigation's)."""
+    return {"suite": row["eval_suite"], "success_rate": row["success"], "collision_free_rate": row["collision_free"],
+            "either_share": row["either"], "score": row["score"], "episodes": row["episodes"], "step": row["env_steps"]}
 
 
 def _truncate_log(path: Path, rows: int) -> None:
@@ -417,6 +447,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     stats.setdefault("branch_window", [])  # [branch, reward] of the last RESTART_WINDOW of steps (branch restarts)
     stats.setdefault("branch_checks_done", 0)
     stats.setdefault("branch_restarts", [])
+    stats.setdefault("best", None)  # keep_best: the best curve row so far (its agent is model_best.npz)
     curve = _Curve(run_dir, cfg, env, step) if cfg.curve_every else None
     nav = cfg.task == "navigation"
     t0 = time.perf_counter() - stats["wall_s"]
@@ -458,7 +489,10 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                             del stats["branch_window"][0]
                     recent = [*recent, reward][-100:]
                     if curve is not None and step % cfg.curve_every == 0:
-                        curve.evaluate(agent, step)
+                        row = curve.evaluate(agent, step)
+                        if cfg.keep_best and _better(row, stats["best"]):
+                            agent.save(run_dir / "model_best.npz")
+                            stats["best"] = {k: row[k] for k in ("env_steps", "success", "score")}
                     if progress and step % 25 == 0:
                         progress(Progress(cfg.seed, step, stats["attempt_start"] + cfg.steps, episode,
                                           float(np.mean(recent)), td,
@@ -489,7 +523,11 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
             stats["wall_s"] = time.perf_counter() - t0
             ckpt.save(agent, rng, step, episode, step, stats)
     wall = time.perf_counter() - t0 - (curve.eval_s if curve is not None else 0.0)  # learning time only
-    agent.save(run_dir / "model.npz")
+    if cfg.keep_best and stats["best"] is not None:
+        agent.save(run_dir / "model_last.npz")
+        atomic_write_bytes(run_dir / "model.npz", (run_dir / "model_best.npz").read_bytes())
+    else:
+        agent.save(run_dir / "model.npz")
     summary: dict[str, Any] = {
         "seed": cfg.seed, "steps": step, "episodes": stats["episodes"], "episodes_reaching_goal": stats["goals"],
         "mean_reward": stats["reward_sum"] / max(step, 1),
@@ -507,7 +545,13 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     if nav:
         summary["components_per_branch"] = dict(zip(BRANCH_NAMES,
                                                      agent.components_per_branch, strict=True))
-    if cfg.evaluate and nav:
+    if cfg.keep_best and stats["best"] is not None:
+        rows = {r["env_steps"]: r for r in curve.rows}  # type: ignore[union-attr]
+        summary["selected_step"] = stats["best"]["env_steps"]
+        summary["eval"] = _nav_eval(rows[stats["best"]["env_steps"]])
+        if cfg.evaluate:
+            summary["eval_last"] = _nav_eval(rows[step]) if step in rows else evaluate_navigation(agent, cfg)
+    elif cfg.evaluate and nav:
         summary["eval"] = evaluate_navigation(agent, cfg)
     elif cfg.evaluate:
         from brlcli.evaluate import evaluate_lane_keeping

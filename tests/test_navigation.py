@@ -194,3 +194,69 @@ def test_suite_task_check_applies_to_any_policy_with_a_task() -> None:
         check_suite_task("validation", NavPolicy())
     check_suite_task("corl2017", NavPolicy())
     check_suite_task("paper", object())  # a policy without a task drives lanes
+
+
+def test_the_bench_replans_a_route_the_car_has_left_as_carlas_planner_does(net01: RoadNetwork) -> None:
+    from brlcli.sim.roadnet import Navigator
+
+    routes = junction_routes(net01)
+    right = next(r for r in routes if r.kind == "turn_right")
+    straight = next(r for r in routes if r.kind == "go_straight" and r.start == right.start)
+    nav = Navigator(net01, right.start, right.goal)
+    assert nav.command(*right.start) == Command.LANE_FOLLOW and nav.replans == 0  # on its route: no new plan
+    inside = next(p for p in net01.paths if p.kind == "connector" and p.command == Command.GO_STRAIGHT)
+    assert nav.command(*inside.pose_at(inside.length_m / 2)) is not None and nav.replans == 0  # in a junction: keep
+    missed = straight.goal  # went straight where the route turns right: 30 m into the wrong road
+    assert abs(nav.route.project(*missed[:2])[1]) > 6.0
+    nav.command(*missed)
+    assert nav.replans == 1
+    assert abs(nav.route.project(*missed[:2])[1]) < 0.5  # the new route starts where the car is ...
+    assert np.hypot(*(np.array(nav.route.goal) - right.goal[:2])) < 1.0  # ... and still ends at the goal
+    assert len(nav.route.commands) >= 1  # and it has to turn somewhere to get back
+
+
+def test_keep_best_ships_the_evaluation_with_the_best_validation_figures(tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    import brlcli.curve
+
+    successes = iter([0.25, 0.5, 0.25])
+
+    class FakeEvaluator:  # the mechanics only: nav_validation itself runs in the training tests and the study
+        def __init__(self, suite: str, bench_seed: int = 0) -> None:
+            assert suite == "nav_validation"
+
+        def evaluate(self, policy: object) -> dict:
+            return {"episodes": 16, "success": next(successes), "collision_free": 1.0, "either": 0.1, "score": 0.5,
+                    "eval_suite": "nav_validation"}
+
+        def close(self) -> None:
+            pass
+
+    monkeypatch.setattr(brlcli.curve, "SuiteEvaluator", FakeEvaluator)
+    cfg = TrainConfig(task="navigation", steps=60, seed=1, curve_every=20, keep_best=True)
+    summary = train_run(cfg, tmp_path / "run")["summary"]
+    run = tmp_path / "run"
+    assert summary["selected_step"] == 40 and summary["eval"]["success_rate"] == 0.5
+    assert summary["eval_last"]["success_rate"] == 0.25 and summary["eval_last"]["step"] == 60
+    assert (run / "model.npz").read_bytes() == (run / "model_best.npz").read_bytes()
+    assert (run / "model.npz").read_bytes() != (run / "model_last.npz").read_bytes()
+    plain = train_run(TrainConfig(task="navigation", steps=60, seed=1, evaluate=False), tmp_path / "plain")
+    assert plain["summary"]["steps"] == 60  # the training itself is the same run: evaluations never touch it
+    assert (tmp_path / "plain" / "model.npz").read_bytes() == (run / "model_last.npz").read_bytes()
+    assert (tmp_path / "plain" / "log.csv").read_bytes() == (run / "log.csv").read_bytes()
+    with pytest.raises(BrlInputError, match="keep_best needs"):
+        TrainConfig(task="navigation", keep_best=True)
+    with pytest.raises(BrlInputError, match="keep_best needs"):
+        TrainConfig(keep_best=True, curve_every=100)
+
+
+def test_the_junction_route_mix_is_configurable() -> None:
+    env = DrivingEnv(routes="navigation", kinds=("straight", "turn_left"), junction_weight=4.0,
+                     junction_approaches_m=(25.0,))
+    try:
+        assert {r.name.rsplit("_", 1)[1] for r in env.routes if r.kind == "turn_left"} == {"25"}
+        assert np.allclose(np.diff(np.concatenate([[0.0], env._kind_cdf])), [0.2, 0.8])
+    finally:
+        env.close()
+    with pytest.raises(BrlInputError, match="junction_weight must be > 0"):
+        TrainConfig(task="navigation", junction_weight=0.0)

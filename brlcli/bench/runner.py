@@ -27,9 +27,14 @@ from brlcli.executor import Executor, run_tasks
 from brlcli.npzio import npz_bytes
 from brlcli.policy import Observation, Policy, PolicySpec
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
+from brlcli.sim.roadnet import Navigator
 from brlcli.sim.town import load_town
 from brlcli.sim.vehicle import Control
 from brlcli.sim.world import FRAME_DT_S, World
+
+REPLANNING_SUITES = ("corl2017", "nocrash", "nav_validation")
+"""Suites whose route commands are replanned when the car leaves its route (`Navigator`, as CARLA 0.8's planner in
+CoRL2017 and NoCrash); the paper's lane-keeping suites keep the route planned at the start."""
 
 LOG_FIELDS = ("game_time_s", "x", "y", "yaw_deg", "forward_speed_kmh", "collision_vehicles",
               "collision_pedestrians", "collision_other", "intersection_offroad", "intersection_otherlane")
@@ -38,7 +43,8 @@ LOG_FIELDS = ("game_time_s", "x", "y", "yaw_deg", "forward_speed_kmh", "collisio
 def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int) -> tuple[dict, dict]:
     """Drive one episode; returns the result record and the per-frame log arrays."""
     world.set_weather(spec.weather)
-    route = world.network.route(spec.start, spec.goal)
+    navigator = Navigator(world.network, spec.start, spec.goal)
+    replan = spec.suite in REPLANNING_SUITES
     frame = world.reset(spec.start, seed=spec.seed(bench_seed))
     policy.reset(spec, world)
     n_max = math.ceil(spec.timeout_s / FRAME_DT_S)
@@ -59,8 +65,11 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
                 rgb, labels = frame.rgb, frame.labels
             else:
                 rgb, labels = world.render()[:2]
-            s, _ = route.project(m.x, m.y)
-            control = policy.decide(Observation(rgb, labels, m, int(route.command_at(s))))
+            if replan:
+                command = navigator.command(m.x, m.y, m.yaw_deg)
+            else:
+                command = navigator.route.command_at(navigator.route.project(m.x, m.y)[0])
+            control = policy.decide(Observation(rgb, labels, m, int(command)))
         frame = world.step(control, render=False)
         n = i + 1
         for k in LOG_FIELDS:
@@ -89,6 +98,7 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
         "steps": int(n), "offroad_steps": int(off.sum()), "otherlane_steps": int(other.sum()),
         "either_steps": int((off | other).sum()),
         "final_distance_m": math.hypot(log["x"][-1] - gx, log["y"][-1] - gy),
+        **({"replans": navigator.replans} if replan else {}),
     }
     return result, log
 

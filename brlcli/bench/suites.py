@@ -14,7 +14,7 @@ from brlcli.sim.town import load_town
 from brlcli.sim.weather import TEST_WEATHERS, TRAIN_WEATHERS, get_weather
 
 SUITES = ("paper", "validation", "corl2017", "nocrash", "nav_validation")
-SUITE_VERSION = {"paper": 1, "validation": 1, "corl2017": 1, "nocrash": 1, "nav_validation": 1}
+SUITE_VERSION = {"paper": 1, "validation": 1, "corl2017": 2, "nocrash": 2, "nav_validation": 2}
 NAV_VALIDATION_ROUTES = 8
 """Planner routes per town in the navigation validation suite (`brlcli.sim.navroutes.validation_routes`)."""
 NAV_VALIDATION_CONDITIONS = {"training": ("town01", (1,)), "new_town_weather": ("town02", (14,))}

@@ -42,8 +42,9 @@ class DrivingEnv(gym.Env):
     (RGB -> label image, e.g. the segmentation net) the state comes from estimated labels instead of ground truth.
 
     `routes="navigation"` (issue 20, outside the paper) drives the town's training routes and the planner's junction
-    routes (`brlcli.sim.navroutes.junction_routes`, kinds turn_left / turn_right / go_straight), drawing a kind
-    uniformly and then a route of it, and, with `route_reward`, adds the
+    routes (`brlcli.sim.navroutes.junction_routes`, kinds turn_left / turn_right / go_straight, starting
+    `junction_approaches_m` before the junction), drawing a kind (junction kinds `junction_weight` times as likely as
+    the others; default KIND_WEIGHTS) and then a route of it, and, with `route_reward`, adds the
     route-following terms to the reward (progress along the route; a wrong turn, farther than `wrong_turn_m` from
     the route, ends the episode). Every step's info carries the route `command` (CARLA code) for the next decision.
     """
@@ -56,7 +57,8 @@ class DrivingEnv(gym.Env):
                  render_mode: str | None = None,
                  labeler: Callable[[np.ndarray], np.ndarray] | None = None, offroad_end: float | None = None,
                  start_offset_m: float = 0.0, start_yaw_deg: float = 0.0,
-                 otherlane_end: float | None = None, route_reward: RouteRewardParams | None = None) -> None:
+                 otherlane_end: float | None = None, route_reward: RouteRewardParams | None = None,
+                 junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None) -> None:
         super().__init__()
         try:
             self.check_episode_rules(offroad_end, start_offset_m, start_yaw_deg, otherlane_end)
@@ -68,9 +70,10 @@ class DrivingEnv(gym.Env):
         self.start_yaw_deg = float(start_yaw_deg)  # and heading offset ~ U(-b, b) degrees
         self.world = World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians, camera=camera)
         if routes == "navigation":
-            from brlcli.sim.navroutes import junction_routes
+            from brlcli.sim.navroutes import JUNCTION_APPROACHES_M, junction_routes
 
-            candidates = list(self.world.town.route_set("training")) + junction_routes(self.world.network)
+            candidates = list(self.world.town.route_set("training")) + junction_routes(
+                self.world.network, tuple(junction_approaches_m or JUNCTION_APPROACHES_M))
         else:
             candidates = list(self.world.town.route_set(routes))
         self.routes = [r for r in candidates if r.kind in kinds]
@@ -81,7 +84,8 @@ class DrivingEnv(gym.Env):
 
             kinds_here = list(dict.fromkeys(r.kind for r in self.routes))
             self._by_kind = [[r for r in self.routes if r.kind == k] for k in kinds_here]
-            weights = np.array([KIND_WEIGHTS.get(k, 1.0) for k in kinds_here])
+            kind_weights = KIND_WEIGHTS if junction_weight is None else dict.fromkeys(KIND_WEIGHTS, junction_weight)
+            weights = np.array([kind_weights.get(k, 1.0) for k in kinds_here])
             self._kind_cdf = np.cumsum(weights / weights.sum())
         if not self.routes:
             raise BrlInputError(f"town {self.world.town.name} has no {routes} routes of kinds {', '.join(kinds)}")

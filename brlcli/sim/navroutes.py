@@ -40,14 +40,14 @@ def _kind(command: Command) -> str:
     return JUNCTION_KINDS[int(command_branch(int(command))) - 1]
 
 
-def junction_routes(network: RoadNetwork) -> list[RouteSpec]:
+def junction_routes(network: RoadNetwork, approaches_m: tuple[float, ...] = JUNCTION_APPROACHES_M) -> list[RouteSpec]:
     """One route per (connector, approach): through exactly one junction turn, named nav_<connector>_<approach>."""
     routes = []
     for lane_in in network.lanes:
         for c in network.successors[lane_in.index]:
             conn = network.paths[c]
             lane_out = network.paths[network.successors[c][0]]
-            for approach in JUNCTION_APPROACHES_M:
+            for approach in approaches_m:
                 s0 = max(lane_in.length_m - approach, 1.0)
                 goal = lane_out.pose_at(min(JUNCTION_EXIT_M, lane_out.length_m - 1.0))
                 routes.append(RouteSpec(f"nav_{c:03d}_{int(approach)}", _kind(conn.command), lane_in.pose_at(s0),

@@ -387,3 +387,44 @@ class Route:
             if start - lookahead_m <= s_m <= end:
                 return cmd
         return Command.LANE_FOLLOW
+
+
+REPLAN_OFFSET_M = 3.0
+"""`Navigator` replans when the car is more than this far (m) from its route, on a lane (the lane's half width plus
+a margin: a car in its own lane of the route is within about 1 m)."""
+
+
+class Navigator:
+    """An episode's route commands, replanned from the car's pose as CARLA 0.8's planner does.
+
+    CARLA's planner (`carla/planner/planner.py`) recomputes the route from the car's position whenever the car enters
+    a new node of its grid away from a junction, so a car that missed a turn gets the commands of a new route to the
+    goal. Replanning from a pose on the route gives the same route, so brl replans only when the car is more than
+    REPLAN_OFFSET_M from its route and on a lane (not inside a junction) along its heading.
+    """
+
+    def __init__(self, network: RoadNetwork, start: tuple[float, float, float],
+                 goal: tuple[float, float, float]) -> None:
+        self.network = network
+        self.goal = goal
+        self.route = network.route(start, goal)
+        self.replans = 0
+
+    def command(self, x_m: float, y_m: float, yaw_deg: float) -> Command:
+        """The command for the car at (x_m, y_m) heading yaw_deg, replanning first if it has left its route."""
+        s, offset = self.route.project(x_m, y_m)
+        if abs(offset) > REPLAN_OFFSET_M and self._replan(x_m, y_m, yaw_deg):
+            s, _ = self.route.project(x_m, y_m)
+        return self.route.command_at(s)
+
+    def _replan(self, x_m: float, y_m: float, yaw_deg: float) -> bool:
+        """Plan anew from the pose when it lies on a lane along its heading; True when the route changed."""
+        try:
+            path, _, dist = self.network.locate(x_m, y_m, yaw_deg)
+            if self.network.paths[path].kind == "connector" or dist > self.network.lane_width_m / 2:
+                return False
+            self.route = self.network.route((x_m, y_m, yaw_deg), self.goal)
+        except BrlInputError:  # no lane along the heading, or no route from it: keep the old commands
+            return False
+        self.replans += 1
+        return True
