@@ -130,6 +130,8 @@ class TrainConfig:
     junction_weight: float = 2.0  # navigation only: a junction kind's probability relative to a lane-keeping kind
     junction_approaches_m: list[float] = field(default_factory=lambda: [25.0, 60.0])  # navigation only: where the
     # junction routes start before their junction (m)
+    straight_as_follow: bool = False  # navigation only, outside the paper: "go straight" acts and learns in the
+    # follow branch (three branches learn; the straight one stays empty)
     keep_best: bool = False  # navigation only, outside the paper: model.npz is the curve evaluation (nav_validation)
     # with the highest success (ties: Score, then the later step), not the agent at the end (needs curve_every)
 
@@ -215,7 +217,8 @@ class TrainConfig:
         if self.task == "navigation":
             from brlcli.agent.command import CommandAgent
 
-            return CommandAgent(state_dim=30, n_actions=4, params=self.agent_params(), bootstrap=self.command_bootstrap)
+            return CommandAgent(state_dim=30, n_actions=4, params=self.agent_params(), bootstrap=self.command_bootstrap,
+                                straight_as_follow=self.straight_as_follow)
         return BayesianAgent(state_dim=30, n_actions=4, params=self.agent_params())
 
     def camera(self) -> CameraConfig:

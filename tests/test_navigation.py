@@ -260,3 +260,28 @@ def test_the_junction_route_mix_is_configurable() -> None:
         env.close()
     with pytest.raises(BrlInputError, match="junction_weight must be > 0"):
         TrainConfig(task="navigation", junction_weight=0.0)
+
+
+def test_straight_as_follow_acts_and_learns_in_the_follow_branch(tmp_path: Path) -> None:
+    from brlcli.agent.command import COMMAND_FORMAT_VERSION
+
+    rng = np.random.default_rng(0)
+    agent = CommandAgent(straight_as_follow=True)
+    s0, s1 = np.full(30, 0.2), np.full(30, 0.25)
+    agent.set_command(Command.GO_STRAIGHT)
+    assert agent.branch == 0
+    before = [b.to_arrays() for b in agent.branches]
+    agent.learn(s0, agent.act(s0, rng), -1.0, s1, Command.GO_STRAIGHT)
+    after = [b.to_arrays() for b in agent.branches]
+    changed = [any(not np.array_equal(a[k], b[k]) for k in a) for a, b in zip(before, after, strict=True)]
+    assert changed == [True, False, False, False]
+    agent.set_command(Command.TURN_LEFT)
+    assert agent.branch == 1
+    agent.save(tmp_path / "m.npz")
+    again = CommandAgent.load(tmp_path / "m.npz")
+    assert again.straight_as_follow and again.branch_of(Command.GO_STRAIGHT) == 0
+    with np.load(tmp_path / "m.npz") as npz:
+        assert int(npz["format_version"]) == COMMAND_FORMAT_VERSION + 1  # older brl refuses it
+    CommandAgent().save(tmp_path / "plain.npz")
+    plain = CommandAgent.load(tmp_path / "plain.npz")
+    assert not plain.straight_as_follow and plain.branch_of(Command.GO_STRAIGHT) == 3

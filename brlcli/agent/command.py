@@ -30,6 +30,10 @@ from brlcli.sim.roadnet import BRANCH_NAMES, command_branch
 
 COMMAND_FORMAT_VERSION = 1
 """Version of the command-conditioned model file."""
+SHARED_STRAIGHT_FORMAT_VERSION = 2
+"""Version of a file whose "go straight" command acts with the follow branch (`straight_as_follow`; brl before it
+would read such a file as four branches and act with the empty straight one, so it refuses the version)."""
+STRAIGHT = BRANCH_NAMES.index("straight")
 COMMAND_KIND = "command-conditioned"
 BOOTSTRAPS = ("next-branch", "own-branch")
 """Where a learning step whose next decision has another command takes the value of s_{t+1} from."""
@@ -39,26 +43,34 @@ class CommandAgent:
     """Four Bayesian RL agents, one per route command; `set_command` picks the branch `act` and `learn` use."""
 
     def __init__(self, state_dim: int = 30, n_actions: int = 4, params: BRLParams | None = None,
-                 bootstrap: str = "next-branch") -> None:
-        self._setup([BayesianAgent(state_dim, n_actions, params) for _ in BRANCH_NAMES], bootstrap)
+                 bootstrap: str = "next-branch", straight_as_follow: bool = False) -> None:
+        self._setup([BayesianAgent(state_dim, n_actions, params) for _ in BRANCH_NAMES], bootstrap,
+                    straight_as_follow)
 
-    def _setup(self, branches: list[BayesianAgent], bootstrap: str) -> None:
+    def _setup(self, branches: list[BayesianAgent], bootstrap: str, straight_as_follow: bool = False) -> None:
         if bootstrap not in BOOTSTRAPS:
             raise ValueError(f"bootstrap must be one of {', '.join(BOOTSTRAPS)}, got {bootstrap!r}")
         self.branches = list(branches)
         self._branch = 0
         self.bootstrap = bootstrap
+        self.straight_as_follow = bool(straight_as_follow)  # "go straight" acts and learns in the follow branch
 
     @classmethod
-    def from_branches(cls, branches: list[BayesianAgent], bootstrap: str = "next-branch") -> CommandAgent:
+    def from_branches(cls, branches: list[BayesianAgent], bootstrap: str = "next-branch",
+                      straight_as_follow: bool = False) -> CommandAgent:
         """An agent made of existing branches (in BRANCH_NAMES order)."""
         agent = cls.__new__(cls)
-        agent._setup(branches, bootstrap)
+        agent._setup(branches, bootstrap, straight_as_follow)
         return agent
+
+    def branch_of(self, command: int) -> int:
+        """The branch (index into BRANCH_NAMES) that acts on a CARLA command code."""
+        branch = int(command_branch(int(command)))
+        return 0 if self.straight_as_follow and branch == STRAIGHT else branch
 
     def set_command(self, command: int) -> None:
         """Select the branch of a CARLA command code (2 follow, 3 left, 4 right, 5 straight; others follow)."""
-        self._branch = int(command_branch(int(command)))
+        self._branch = self.branch_of(command)
 
     @property
     def branch(self) -> int:
@@ -118,7 +130,7 @@ class CommandAgent:
               next_command: int | None = None) -> LearnStep:
         """One step of Algorithm 1 in the branch in use; with `next_command` naming another branch (and bootstrap
         next-branch) the target takes that branch's value of s_{t+1}."""
-        nxt = None if next_command is None else int(command_branch(int(next_command)))
+        nxt = None if next_command is None else self.branch_of(next_command)
         if nxt is None or nxt == self._branch or self.bootstrap == "own-branch":
             return self.current.learn(state, action, reward, next_state)
         value = self.branches[nxt].value(next_state)
@@ -126,7 +138,8 @@ class CommandAgent:
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write every branch into one versioned .npz, atomically."""
-        arrays: dict[str, np.ndarray] = {"format_version": np.array(COMMAND_FORMAT_VERSION, dtype=np.int64),
+        version = SHARED_STRAIGHT_FORMAT_VERSION if self.straight_as_follow else COMMAND_FORMAT_VERSION
+        arrays: dict[str, np.ndarray] = {"format_version": np.array(version, dtype=np.int64),
                                          "kind": np.array(COMMAND_KIND), "branches": np.array(BRANCH_NAMES)}
         for name, b in zip(BRANCH_NAMES, self.branches, strict=True):
             arrays.update({f"{name}.{k}": v for k, v in b.to_arrays().items()})
@@ -148,15 +161,15 @@ class CommandAgent:
                 raise BrlInputError(f"model file {path} is unreadable: {_one_line(exc)}") from None
             if kind != COMMAND_KIND:
                 raise BrlInputError(f"model file {path} is a '{kind}' model, not a command-conditioned one")
-            if version != COMMAND_FORMAT_VERSION:
+            if version not in (COMMAND_FORMAT_VERSION, SHARED_STRAIGHT_FORMAT_VERSION):
                 raise BrlInputError(f"model file {path} has format version {version}, this brl reads "
-                                    f"{COMMAND_FORMAT_VERSION}")
+                                    f"{COMMAND_FORMAT_VERSION} and {SHARED_STRAIGHT_FORMAT_VERSION}")
             if names != list(BRANCH_NAMES):
                 raise BrlInputError(f"model file {path} has branches {names}, expected {list(BRANCH_NAMES)}")
             branches = []
             for name in names:
                 branches.append(BayesianAgent._from_npz(_Prefixed(npz, f"{name}."), f"{path} (branch {name})"))
-        return cls.from_branches(branches, bootstrap)
+        return cls.from_branches(branches, bootstrap, version == SHARED_STRAIGHT_FORMAT_VERSION)
 
 
 class _Prefixed:
