@@ -40,7 +40,7 @@ LOG_COLUMNS = (
     "step", "episode", "decision", "action", "reward", "r_collision", "r_offroad", "r_otherlane", "r_speed",
     "r_road_view", "td_error", "component", "created", "weight", "weight_case", "components", "alpha", "tau",
     "rho", "forward_speed_kmh", "intersection_offroad", "intersection_otherlane", "x", "y", "attempt", "command",
-    "r_progress", "r_wrong_turn",
+    "r_progress", "r_wrong_turn", "r_heading", "r_lateral",
 )
 CHECKPOINT_VERSION = 1
 RESTART_CHECKS = (1 / 3, 2 / 3)
@@ -127,6 +127,8 @@ class TrainConfig:
     r_progress: float = 5.0  # navigation only: route-following reward terms (RouteRewardParams)
     r_wrong_turn: float = 40.0
     wrong_turn_m: float = 6.0
+    r_heading: float = 0.0  # navigation only, outside the paper: cost per rad of heading error against the route
+    r_lateral: float = 0.0  # navigation only, outside the paper: cost per m of distance from the route
     junction_weight: float = 2.0  # navigation only: a junction kind's probability relative to a lane-keeping kind
     junction_approaches_m: list[float] = field(default_factory=lambda: [25.0, 60.0])  # navigation only: where the
     # junction routes start before their junction (m)
@@ -210,7 +212,7 @@ class TrainConfig:
         """The route-following reward terms of a navigation run (None for lane keeping)."""
         if self.task != "navigation":
             return None
-        return RouteRewardParams(self.r_progress, self.r_wrong_turn, self.wrong_turn_m)
+        return RouteRewardParams(self.r_progress, self.r_wrong_turn, self.wrong_turn_m, self.r_heading, self.r_lateral)
 
     def new_agent(self) -> Any:
         """A fresh agent for this run: the Bayesian agent, or the command-conditioned one for navigation."""
@@ -275,7 +277,8 @@ def _log_row(step: int, episode: int, decision: int, action: int, reward: float,
             terms["otherlane"], terms["speed"], terms["road_view"], learn.td_error, learn.component,
             int(learn.created), learn.weight, learn.weight_case, agent.n_components, agent.alpha, agent.tau,
             agent.rho, m["forward_speed_kmh"], m["intersection_offroad"], m["intersection_otherlane"], m["x"], m["y"],
-            attempt, command, terms.get("progress", 0.0), terms.get("wrong_turn", 0.0)]
+            attempt, command, terms.get("progress", 0.0), terms.get("wrong_turn", 0.0),
+            terms.get("heading", 0.0), terms.get("lateral", 0.0)]
 
 
 def _format(v: Any) -> str:

@@ -51,12 +51,42 @@ def test_validation_routes_are_seeded_multi_junction_routes(net01: RoadNetwork) 
 
 def test_route_terms() -> None:
     p = RouteRewardParams()
-    assert route_terms(3.9, 3.9, 0.5, p) == {"progress": 0.0, "wrong_turn": 0.0}
+    assert route_terms(3.9, 3.9, 0.5, p) == {"progress": 0.0, "wrong_turn": 0.0, "heading": 0.0, "lateral": 0.0}
     assert route_terms(0.0, 3.9, 0.5, p)["progress"] == -p.r_progress
     assert route_terms(-10.0, 3.9, 0.5, p)["progress"] == -2 * p.r_progress  # capped
     assert route_terms(3.9, 3.9, -6.5, p)["wrong_turn"] == -p.r_wrong_turn
     with pytest.raises(ValueError):
         RouteRewardParams(wrong_turn_m=0.0)
+    with pytest.raises(ValueError):
+        RouteRewardParams(r_heading=-1.0)
+
+
+def test_heading_and_lateral_terms_cost_turning_away_from_the_route(net01: RoadNetwork) -> None:
+    p = RouteRewardParams(r_heading=5.0, r_lateral=1.0)
+    assert route_terms(3.9, 3.9, 0.0, RouteRewardParams(), heading_error_rad=0.5)["heading"] == 0.0  # off by default
+    terms = route_terms(3.9, 3.9, -2.0, p, heading_error_rad=-0.4)
+    assert terms["heading"] == pytest.approx(-2.0) and terms["lateral"] == pytest.approx(-2.0)
+    capped = route_terms(3.9, 3.9, 9.0, p, heading_error_rad=3.0)
+    assert capped["heading"] == pytest.approx(-5.0 * np.pi / 2) and capped["lateral"] == pytest.approx(-6.0)
+    right = next(r for r in junction_routes(net01) if r.kind == "turn_right")
+    route = net01.route(right.start, right.goal)
+    start, end, _cmd = route.commands[0]
+    assert route.heading_at(0.0) == pytest.approx(np.radians(right.start[2]), abs=1e-6)
+    turned = np.degrees(route.heading_at(end + 5.0) - route.heading_at(start - 5.0))
+    assert (turned + 180.0) % 360.0 - 180.0 == pytest.approx(-90.0, abs=5.0)  # a right turn: yaw falls by 90 degrees
+
+
+def test_a_left_turn_on_go_straight_costs_heading() -> None:
+    env = DrivingEnv(routes="navigation", kinds=("go_straight",), route_reward=RouteRewardParams(r_heading=5.0))
+    try:
+        env.reset(seed=0, options={"route": env.routes[0].name})
+        costs = []
+        for action in (0, 2, 0, 0):  # forward, then left: the heading cost appears after the left turn
+            _obs, reward, _term, _trunc, info = env.step(action)
+            costs.append(info["reward_terms"]["heading"])
+        assert costs[0] > -0.2 and min(costs[2:]) < -0.5
+    finally:
+        env.close()
 
 
 def test_going_straight_on_a_right_turn_is_a_wrong_turn_that_ends_the_episode() -> None:

@@ -366,6 +366,12 @@ class Route:
         """Goal position (m)."""
         return float(self.points[-1, 0]), float(self.points[-1, 1])
 
+    def heading_at(self, s_m: float) -> float:
+        """The route's direction (rad, as yaw: atan2 of dy and dx) at arc length `s_m`, clamped to the route."""
+        k = int(np.clip(np.searchsorted(self.cum_s, s_m, side="right") - 1, 0, len(self.points) - 2))
+        dx, dy = self.points[k + 1] - self.points[k]
+        return float(np.arctan2(dy, dx))
+
     def project(self, x_m: float, y_m: float) -> tuple[float, float]:
         """Arc length along the route (m) of the nearest point to (x, y), and the signed lateral offset (m, + right)."""
         a, b = self.points[:-1], self.points[1:]
