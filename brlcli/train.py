@@ -134,6 +134,9 @@ class TrainConfig:
     # junction routes start before their junction (m)
     straight_as_follow: bool = False  # navigation only, outside the paper: "go straight" acts and learns in the
     # follow branch (three branches learn; the straight one stays empty)
+    warm_start_junctions: int = 0  # navigation only, outside the paper: at the end of the episode that reaches
+    # this learning step the left, right and straight branches restart from copies of the follow branch
+    # (`BayesianAgent.warm_copy`), and later per-branch trap restarts of them copy it too; 0: never
     keep_best: bool = False  # navigation only, outside the paper: model.npz is the curve evaluation (nav_validation)
     # with the highest success (ties: Score, then the later step), not the agent at the end (needs curve_every)
 
@@ -152,6 +155,10 @@ class TrainConfig:
         if self.keep_best and (self.task != "navigation" or not self.curve_every):
             raise BrlInputError("keep_best needs --task navigation and --curve-every N (it selects on nav_validation; "
                                 "lane keeping's curve is the paper suite, which is reported, not chosen on)")
+        if isinstance(self.warm_start_junctions, bool) or not isinstance(self.warm_start_junctions, int) \
+                or self.warm_start_junctions < 0 or (self.warm_start_junctions and self.task != "navigation"):
+            raise BrlInputError("warm_start_junctions needs --task navigation and a learning step >= 0 (0: never), "
+                                f"got {self.warm_start_junctions!r}")
         if not (self.junction_weight > 0 and self.junction_approaches_m
                 and all(isinstance(a, int | float) and a > 0 for a in self.junction_approaches_m)):
             raise BrlInputError("junction_weight must be > 0 and junction_approaches_m a non-empty list of distances "
@@ -453,6 +460,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     stats.setdefault("branch_window", [])  # [branch, reward] of the last RESTART_WINDOW of steps (branch restarts)
     stats.setdefault("branch_checks_done", 0)
     stats.setdefault("branch_restarts", [])
+    stats.setdefault("warm_started", None)  # warm_start_junctions: the step the junction branches were warm-started
     stats.setdefault("best", None)  # keep_best: the best curve row so far (its agent is model_best.npz)
     curve = _Curve(run_dir, cfg, env, step) if cfg.curve_every else None
     nav = cfg.task == "navigation"
@@ -521,11 +529,16 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                 stats.update(attempt=stats["attempt"] + 1, attempt_start=step, checks_done=0, window=[],
                              window_offroad=[])
                 agent = cfg.new_agent()
+            if cfg.warm_start_junctions and stats["warm_started"] is None and step >= cfg.warm_start_junctions:
+                stats["warm_started"] = step
+                for k in range(1, len(agent.branches)):
+                    agent.branches[k] = agent.branches[0].warm_copy()
             for k in _trapped_branches(cfg, step, stats):
                 window = np.asarray(stats["branch_window"]).reshape(-1, 2)
                 stats["branch_restarts"].append({"step": step, "branch": k,
                                                  "mean_reward": float(window[window[:, 0] == k, 1].mean())})
-                agent.branches[k] = BayesianAgent(state_dim=30, n_actions=4, params=cfg.agent_params())
+                agent.branches[k] = agent.branches[0].warm_copy() if k and stats["warm_started"] is not None else \
+                    BayesianAgent(state_dim=30, n_actions=4, params=cfg.agent_params())
             stats["wall_s"] = time.perf_counter() - t0
             ckpt.save(agent, rng, step, episode, step, stats)
     wall = time.perf_counter() - t0 - (curve.eval_s if curve is not None else 0.0)  # learning time only
@@ -548,6 +561,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         curve.close()
     if cfg.branch_restart_below is not None:
         summary["branch_restarts"] = stats["branch_restarts"]
+    if cfg.warm_start_junctions:
+        summary["junctions_warm_started_at"] = stats["warm_started"]
     if nav:
         summary["components_per_branch"] = dict(zip(BRANCH_NAMES,
                                                      agent.components_per_branch, strict=True))

@@ -315,3 +315,40 @@ def test_straight_as_follow_acts_and_learns_in_the_follow_branch(tmp_path: Path)
     CommandAgent().save(tmp_path / "plain.npz")
     plain = CommandAgent.load(tmp_path / "plain.npz")
     assert not plain.straight_as_follow and plain.branch_of(Command.GO_STRAIGHT) == 3
+
+
+def test_warm_copy_keeps_the_knowledge_and_restarts_the_schedules() -> None:
+    rng = np.random.default_rng(1)
+    teacher = BayesianAgent(params=TrainConfig().agent_params())
+    states = rng.uniform(0.0, 0.2, size=(60, 30))
+    for t in range(59):
+        teacher.learn(states[t], int(rng.integers(4)), float(rng.normal(-5.0, 8.0)), states[t + 1])
+    copy = teacher.warm_copy()
+    assert copy.n_components == teacher.n_components > 1
+    np.testing.assert_array_equal(copy.Q, teacher.Q)
+    np.testing.assert_array_equal(copy.means, teacher.means)
+    for s in states[:5]:  # same densities, so the same greedy action
+        assert copy.act(s, rng, greedy=True) == teacher.act(s, rng, greedy=True)
+    fresh = BayesianAgent(params=teacher.params)
+    assert (copy.alpha, copy.tau, copy.rho) == (fresh.alpha, fresh.tau, fresh.rho)
+    assert (teacher.alpha, teacher.tau) != (fresh.alpha, fresh.tau)
+    assert not copy.visits.any() and teacher.visits.any()
+    copy.learn(states[0], 0, -50.0, states[1])  # learning in the copy leaves the teacher alone
+    assert not np.array_equal(copy.Q, teacher.Q)
+
+
+def test_warm_start_junctions_copies_the_follow_branch_once(tmp_path: Path) -> None:
+    cfg = TrainConfig(task="navigation", steps=150, seed=2, evaluate=False, warm_start_junctions=60)
+    summary = train_run(cfg, tmp_path / "warm")["summary"]
+    at = summary["junctions_warm_started_at"]
+    assert 60 <= at < 150
+    plain = TrainConfig(task="navigation", steps=150, seed=2, evaluate=False)
+    train_run(plain, tmp_path / "plain")
+    warm_log = (tmp_path / "warm" / "log.csv").read_text().splitlines()
+    plain_log = (tmp_path / "plain" / "log.csv").read_text().splitlines()
+    assert warm_log[: at + 1] == plain_log[: at + 1]  # identical up to the copy, different after it
+    assert warm_log != plain_log
+    with pytest.raises(BrlInputError, match="warm_start_junctions"):
+        TrainConfig(warm_start_junctions=60)
+    with pytest.raises(BrlInputError, match="warm_start_junctions"):
+        TrainConfig(task="navigation", warm_start_junctions=-1)

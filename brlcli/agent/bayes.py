@@ -251,6 +251,22 @@ class BayesianAgent:
         self._refresh(m)
         return m
 
+    def warm_copy(self) -> BayesianAgent:
+        """A new agent that starts from this one's components and action values, with its schedules (alpha, tau,
+        rho) at their initial values and no recorded visits, so that it explores again and its first updates of each
+        action value replace the copied one (a branch started from another branch's knowledge; outside the paper)."""
+        agent = BayesianAgent(self._dim, self._n_actions, self._params)
+        n = self._n
+        agent._n = 0
+        agent._allocate(self._capacity())
+        for name in ("_mean", "_kappa", "_nu", "_scatter", "_chol"):
+            getattr(agent, name)[:n] = getattr(self, name)[:n]
+        agent._q[:, :n] = self._q[:, :n]
+        agent._n = n
+        for m in range(n):
+            agent._refresh(m)
+        return agent
+
     def _checked(self, state: Any, what: str) -> tuple[np.ndarray, bytes, int]:
         """Validate a state (shape (D,), finite); return it as float64, its cache key and cache row (-1: absent)."""
         arr = state
