@@ -187,9 +187,10 @@ class BRLPolicy(StatePolicy):
             raise BrlInputError(f"model {model} is {'' if command else 'not '}command-conditioned but its "
                                 f"config.json says task {self.task}")
         self.agent = CommandAgent.load(model) if command else BayesianAgent.load(model)
-        if self.agent.state_dim != STATE_DIM or self.agent.n_actions != len(ACTIONS):
+        if self.agent.state_dim != STATE_DIM or not len(ACTIONS) - 1 <= self.agent.n_actions <= len(ACTIONS):
             raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and "
-                                f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)}")
+                                f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)} "
+                                f"(or {len(ACTIONS) - 1} without backward)")
         self.variant = model_variant(Path(model))
         label = self.variant if self.task == "lane-keeping" else f"{self.variant}, navigation"
         super().__init__(name, setting_name(model_training_input(Path(model)), deploy, label),

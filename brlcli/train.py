@@ -134,6 +134,8 @@ class TrainConfig:
     # junction routes start before their junction (m)
     straight_as_follow: bool = False  # navigation only, outside the paper: "go straight" acts and learns in the
     # follow branch (three branches learn; the straight one stays empty)
+    no_backward: bool = False  # outside the paper: the agent chooses among forward, right and left only (the first
+    # three of the paper's primitives; the privileged oracle never needs backward)
     warm_start_junctions: int = 0  # navigation only, outside the paper: at the end of the episode that reaches
     # this learning step the left, right and straight branches restart from copies of the follow branch
     # (`BayesianAgent.warm_copy`), and later per-branch trap restarts of them copy it too; 0: never
@@ -226,9 +228,15 @@ class TrainConfig:
         if self.task == "navigation":
             from brlcli.agent.command import CommandAgent
 
-            return CommandAgent(state_dim=30, n_actions=4, params=self.agent_params(), bootstrap=self.command_bootstrap,
+            return CommandAgent(state_dim=30, n_actions=self.n_actions, params=self.agent_params(),
+                                bootstrap=self.command_bootstrap,
                                 straight_as_follow=self.straight_as_follow)
-        return BayesianAgent(state_dim=30, n_actions=4, params=self.agent_params())
+        return BayesianAgent(state_dim=30, n_actions=self.n_actions, params=self.agent_params())
+
+    @property
+    def n_actions(self) -> int:
+        """Action primitives the agent chooses among: the first n of `brlcli.sim.gym_env.ACTIONS`."""
+        return 3 if self.no_backward else 4
 
     def camera(self) -> CameraConfig:
         """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""
@@ -538,7 +546,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                 stats["branch_restarts"].append({"step": step, "branch": k,
                                                  "mean_reward": float(window[window[:, 0] == k, 1].mean())})
                 agent.branches[k] = agent.branches[0].warm_copy() if k and stats["warm_started"] is not None else \
-                    BayesianAgent(state_dim=30, n_actions=4, params=cfg.agent_params())
+                    BayesianAgent(state_dim=30, n_actions=cfg.n_actions, params=cfg.agent_params())
             stats["wall_s"] = time.perf_counter() - t0
             ckpt.save(agent, rng, step, episode, step, stats)
     wall = time.perf_counter() - t0 - (curve.eval_s if curve is not None else 0.0)  # learning time only

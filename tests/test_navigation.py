@@ -352,3 +352,24 @@ def test_warm_start_junctions_copies_the_follow_branch_once(tmp_path: Path) -> N
         TrainConfig(warm_start_junctions=60)
     with pytest.raises(BrlInputError, match="warm_start_junctions"):
         TrainConfig(task="navigation", warm_start_junctions=-1)
+
+
+def test_no_backward_trains_and_deploys_three_primitives(tmp_path: Path) -> None:
+    from brlcli.policy import BRLPolicy
+
+    cfg = TrainConfig(task="navigation", steps=150, seed=2, evaluate=False, no_backward=True,
+                      branch_restart_below=[10.0] * 4)  # the restarted branches keep three actions too
+    summary = train_run(cfg, tmp_path / "run")["summary"]
+    assert summary["branch_restarts"]
+    lines = (tmp_path / "run" / "log.csv").read_text().splitlines()
+    actions = {line.split(",")[LOG_COLUMNS.index("action")] for line in lines[1:]}
+    assert actions == {"forward", "right", "left"}
+    agent = CommandAgent.load(tmp_path / "run" / "model.npz")
+    assert agent.n_actions == 3 and {b.n_actions for b in agent.branches} == {3}
+    policy = BRLPolicy("brl", str(tmp_path / "run" / "model.npz"))
+    rng = np.random.default_rng(0)
+    picks = {int(policy.act(s, int(c))) for s, c in zip(rng.dirichlet(np.ones(30), size=40),
+                                                           rng.choice([2, 3, 4, 5], size=40), strict=True)}
+    assert picks <= {0, 1, 2}
+    plain = TrainConfig(task="navigation", steps=150, seed=2, evaluate=False)
+    assert plain.n_actions == 4 and cfg.n_actions == 3

@@ -169,6 +169,8 @@ class CommandAgent:
             branches = []
             for name in names:
                 branches.append(BayesianAgent._from_npz(_Prefixed(npz, f"{name}."), f"{path} (branch {name})"))
+            if len({(b.state_dim, b.n_actions) for b in branches}) != 1:
+                raise BrlInputError(f"model file {path} has branches of different state sizes or action counts")
         return cls.from_branches(branches, bootstrap, version == SHARED_STRAIGHT_FORMAT_VERSION)
 
 
