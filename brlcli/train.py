@@ -134,6 +134,9 @@ class TrainConfig:
     # junction routes start before their junction (m)
     straight_as_follow: bool = False  # navigation only, outside the paper: "go straight" acts and learns in the
     # follow branch (three branches learn; the straight one stays empty)
+    teams: int = 1  # navigation only, outside the paper: K > 1 trains K command-conditioned agents on shared
+    # experience and ships, per command, the branch of the team that earned most on it lately (TeamAgent)
+    team_share: float = 0.5  # teams > 1: the probability that a team learns from a step of another team's episode
     no_backward: bool = False  # outside the paper: the agent chooses among forward, right and left only (the first
     # three of the paper's primitives; the privileged oracle never needs backward)
     warm_start_junctions: int = 0  # navigation only, outside the paper: at the end of the episode that reaches
@@ -157,6 +160,10 @@ class TrainConfig:
         if self.keep_best and (self.task != "navigation" or not self.curve_every):
             raise BrlInputError("keep_best needs --task navigation and --curve-every N (it selects on nav_validation; "
                                 "lane keeping's curve is the paper suite, which is reported, not chosen on)")
+        if isinstance(self.teams, bool) or not isinstance(self.teams, int) or self.teams < 1 \
+                or (self.teams > 1 and self.task != "navigation") or not 0.0 < self.team_share <= 1.0:
+            raise BrlInputError(f"teams must be an integer >= 1 (more than 1 needs --task navigation) and team_share "
+                                f"in (0, 1], got {self.teams!r} and {self.team_share!r}")
         if isinstance(self.warm_start_junctions, bool) or not isinstance(self.warm_start_junctions, int) \
                 or self.warm_start_junctions < 0 or (self.warm_start_junctions and self.task != "navigation"):
             raise BrlInputError("warm_start_junctions needs --task navigation and a learning step >= 0 (0: never), "
@@ -226,11 +233,12 @@ class TrainConfig:
     def new_agent(self) -> Any:
         """A fresh agent for this run: the Bayesian agent, or the command-conditioned one for navigation."""
         if self.task == "navigation":
-            from brlcli.agent.command import CommandAgent
+            from brlcli.agent.command import CommandAgent, TeamAgent
 
-            return CommandAgent(state_dim=30, n_actions=self.n_actions, params=self.agent_params(),
-                                bootstrap=self.command_bootstrap,
-                                straight_as_follow=self.straight_as_follow)
+            teams = [CommandAgent(state_dim=30, n_actions=self.n_actions, params=self.agent_params(),
+                                  bootstrap=self.command_bootstrap, straight_as_follow=self.straight_as_follow)
+                     for _ in range(self.teams)]
+            return TeamAgent(teams) if self.teams > 1 else teams[0]
         return BayesianAgent(state_dim=30, n_actions=self.n_actions, params=self.agent_params())
 
     @property
@@ -326,9 +334,10 @@ class _Checkpoint:
             raise BrlInputError(f"checkpoint {state_path} has version {state.get('version')}, this brl reads "
                                 f"{CHECKPOINT_VERSION}")
         if cfg.task == "navigation":
-            from brlcli.agent.command import CommandAgent
+            from brlcli.agent.command import CommandAgent, TeamAgent
 
-            agent: Any = CommandAgent.load(self.dir / "agent.npz", cfg.command_bootstrap)
+            agent: Any = (TeamAgent if cfg.teams > 1 else CommandAgent).load(self.dir / "agent.npz",
+                                                                            cfg.command_bootstrap)
         else:
             agent = BayesianAgent.load(self.dir / "agent.npz")
         rng = np.random.default_rng()
@@ -415,18 +424,47 @@ def _trapped(cfg: TrainConfig, step: int, stats: dict) -> bool:
 
 
 def _trapped_branches(cfg: TrainConfig, step: int, stats: dict) -> list[int]:
-    """The per-branch trap test at an episode's end: the branches to restart (and records a passed check)."""
+    """The per-branch trap test at an episode's end: the branches to restart, as keys team * 4 + branch (the
+    branch itself without teams), and records a passed check."""
     done = stats["branch_checks_done"]
     if cfg.branch_restart_below is None or done >= len(RESTART_CHECKS) or step < RESTART_CHECKS[done] * cfg.steps:
         return []
     stats["branch_checks_done"] = done + 1
     window = np.asarray(stats["branch_window"], dtype=np.float64).reshape(-1, 2)
     out = []
-    for k, threshold in enumerate(cfg.branch_restart_below):
-        rewards = window[window[:, 0] == k, 1]
-        if rewards.size and rewards.mean() < threshold:
-            out.append(k)
+    for team in range(cfg.teams):
+        for k, threshold in enumerate(cfg.branch_restart_below):
+            key = team * len(cfg.branch_restart_below) + k
+            rewards = window[window[:, 0] == key, 1]
+            if rewards.size and rewards.mean() < threshold:
+                out.append(key)
     return out
+
+
+def _team_mask(cfg: TrainConfig, step: int) -> np.ndarray:
+    """Which teams learn from learning step `step` of another team's episode (TeamAgent; a function of the seed and
+    the step, so that resuming needs no generator state)."""
+    return np.random.default_rng([cfg.seed, 7, step]).random(cfg.teams) < cfg.team_share
+
+
+def _team_means(cfg: TrainConfig, stats: dict) -> np.ndarray:
+    """Mean reward per step of each team's own acting steps on each command in the recent window, shape (teams, 4)
+    (NaN where a team did not act on a command)."""
+    window = np.asarray(stats["branch_window"], dtype=np.float64).reshape(-1, 2)
+    out = np.full((cfg.teams, len(BRANCH_NAMES)), np.nan)
+    for key in range(out.size):
+        rewards = window[window[:, 0] == key, 1]
+        if rewards.size:
+            out.flat[key] = rewards.mean()
+    return out
+
+
+def _deployable(agent: Any, cfg: TrainConfig, stats: dict) -> Any:
+    """The agent to evaluate and ship: itself, or TeamAgent.composed of the best team per command lately."""
+    if cfg.teams == 1:
+        return agent
+    means = np.nan_to_num(_team_means(cfg, stats), nan=-np.inf)
+    return agent.composed([int(np.argmax(means[:, b])) for b in range(len(BRANCH_NAMES))])
 
 
 def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
@@ -479,7 +517,10 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         while step - stats["attempt_start"] < cfg.steps:
             obs, reset_info = env.reset(seed=_episode_seed(cfg.seed, episode))
             command = reset_info["command"]
-            agent.begin_episode(rng)
+            if cfg.teams > 1:
+                agent.start_episode(episode, rng)
+            else:
+                agent.begin_episode(rng)
             state = obs.astype(np.float64)
             buffer = io.StringIO()
             rows = csv.writer(buffer, lineterminator="\n")
@@ -491,8 +532,13 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                 obs, reward, terminated, truncated, info = env.step(action)
                 next_state = obs.astype(np.float64)
                 if decision > 0:  # no learning on the first decision after a reset
-                    learn = agent.learn(state, action, reward, next_state, info["command"]) if nav else \
-                        agent.learn(state, action, reward, next_state)
+                    if cfg.teams > 1:
+                        learn = agent.learn(state, action, reward, next_state, info["command"],
+                                            _team_mask(cfg, step))
+                    elif nav:
+                        learn = agent.learn(state, action, reward, next_state, info["command"])
+                    else:
+                        learn = agent.learn(state, action, reward, next_state)
                     step += 1
                     td = learn.td_error
                     rows.writerow([_format(v) for v in _log_row(step, episode, decision, action, reward,
@@ -505,15 +551,16 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                         stats["window_offroad"].append(int(info["measurements"]["intersection_offroad"] > 0.0))
                         if len(stats["window"]) > max(1, round(RESTART_WINDOW * cfg.steps)):
                             del stats["window"][0], stats["window_offroad"][0]
-                    if cfg.branch_restart_below is not None:
-                        stats["branch_window"].append([agent.branch, reward])
+                    if cfg.branch_restart_below is not None or cfg.teams > 1:
+                        key = agent.branch + (agent.acting * len(BRANCH_NAMES) if cfg.teams > 1 else 0)
+                        stats["branch_window"].append([key, reward])
                         if len(stats["branch_window"]) > max(1, round(RESTART_WINDOW * cfg.steps)):
                             del stats["branch_window"][0]
                     recent = [*recent, reward][-100:]
                     if curve is not None and step % cfg.curve_every == 0:
-                        row = curve.evaluate(agent, step)
+                        row = curve.evaluate(_deployable(agent, cfg, stats), step)
                         if cfg.keep_best and _better(row, stats["best"]):
-                            agent.save(run_dir / "model_best.npz")
+                            _deployable(agent, cfg, stats).save(run_dir / "model_best.npz")
                             stats["best"] = {k: row[k] for k in ("env_steps", "success", "score")}
                     if progress and step % 25 == 0:
                         progress(Progress(cfg.seed, step, stats["attempt_start"] + cfg.steps, episode,
@@ -539,17 +586,26 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                 agent = cfg.new_agent()
             if cfg.warm_start_junctions and stats["warm_started"] is None and step >= cfg.warm_start_junctions:
                 stats["warm_started"] = step
-                for k in range(1, len(agent.branches)):
-                    agent.branches[k] = agent.branches[0].warm_copy()
-            for k in _trapped_branches(cfg, step, stats):
+                for team in agent.teams if cfg.teams > 1 else [agent]:
+                    for k in range(1, len(team.branches)):
+                        team.branches[k] = team.branches[0].warm_copy()
+            for key in _trapped_branches(cfg, step, stats):
                 window = np.asarray(stats["branch_window"]).reshape(-1, 2)
-                stats["branch_restarts"].append({"step": step, "branch": k,
-                                                 "mean_reward": float(window[window[:, 0] == k, 1].mean())})
-                agent.branches[k] = agent.branches[0].warm_copy() if k and stats["warm_started"] is not None else \
+                k = key % len(BRANCH_NAMES)
+                record = {"step": step, "branch": k, "mean_reward": float(window[window[:, 0] == key, 1].mean())}
+                team = agent
+                if cfg.teams > 1:
+                    team = agent.teams[key // len(BRANCH_NAMES)]
+                    record["team"] = key // len(BRANCH_NAMES)
+                stats["branch_restarts"].append(record)
+                team.branches[k] = team.branches[0].warm_copy() if k and stats["warm_started"] is not None else \
                     BayesianAgent(state_dim=30, n_actions=cfg.n_actions, params=cfg.agent_params())
             stats["wall_s"] = time.perf_counter() - t0
             ckpt.save(agent, rng, step, episode, step, stats)
     wall = time.perf_counter() - t0 - (curve.eval_s if curve is not None else 0.0)  # learning time only
+    if cfg.teams > 1:
+        team_means = _team_means(cfg, stats)
+        agent = _deployable(agent, cfg, stats)
     if cfg.keep_best and stats["best"] is not None:
         agent.save(run_dir / "model_last.npz")
         atomic_write_bytes(run_dir / "model.npz", (run_dir / "model_best.npz").read_bytes())
@@ -571,6 +627,11 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         summary["branch_restarts"] = stats["branch_restarts"]
     if cfg.warm_start_junctions:
         summary["junctions_warm_started_at"] = stats["warm_started"]
+    if cfg.teams > 1:
+        summary["team_rewards"] = {name: [None if np.isnan(v) else float(v) for v in team_means[:, b]]
+                                   for b, name in enumerate(BRANCH_NAMES)}
+        summary["team_choice"] = {name: int(np.argmax(np.nan_to_num(team_means[:, b], nan=-np.inf)))
+                                  for b, name in enumerate(BRANCH_NAMES)}
     if nav:
         summary["components_per_branch"] = dict(zip(BRANCH_NAMES,
                                                      agent.components_per_branch, strict=True))

@@ -373,3 +373,32 @@ def test_no_backward_trains_and_deploys_three_primitives(tmp_path: Path) -> None
     assert picks <= {0, 1, 2}
     plain = TrainConfig(task="navigation", steps=150, seed=2, evaluate=False)
     assert plain.n_actions == 4 and cfg.n_actions == 3
+
+
+def test_teams_learn_apart_and_ship_the_best_team_per_command(tmp_path: Path) -> None:
+    from brlcli.agent.command import TeamAgent
+    from brlcli.train import _deployable, _team_means
+
+    cfg = TrainConfig(task="navigation", steps=240, seed=2, evaluate=False, teams=3)
+    summary = train_run(cfg, tmp_path / "run")["summary"]
+    teams = TeamAgent.load(tmp_path / "run" / "checkpoint" / "agent.npz")
+    assert len(teams.teams) == 3
+    follow = [t.branches[0].Q for t in teams.teams]
+    assert not np.array_equal(follow[0], follow[1]) and not np.array_equal(follow[1], follow[2])
+    stats = json.loads((tmp_path / "run" / "checkpoint" / "state.json").read_text())["stats"]
+    means = _team_means(cfg, stats)
+    choice = summary["team_choice"]
+    for b, name in enumerate(("follow", "left", "right", "straight")):
+        if not np.isnan(means[:, b]).all():
+            assert means[choice[name], b] == np.nanmax(means[:, b])
+    shipped = CommandAgent.load(tmp_path / "run" / "model.npz")  # a plain command-conditioned model
+    composed = _deployable(teams, cfg, stats)
+    for b in range(4):
+        np.testing.assert_array_equal(shipped.branches[b].Q, composed.branches[b].Q)
+        np.testing.assert_array_equal(shipped.branches[b].Q, teams.teams[list(choice.values())[b]].branches[b].Q)
+    with pytest.raises(BrlInputError, match="teams"):
+        TrainConfig(teams=2)
+    with pytest.raises(BrlInputError, match="teams"):
+        TrainConfig(task="navigation", teams=2, team_share=0.0)
+    with pytest.raises(BrlInputError, match="not a team checkpoint"):
+        TeamAgent.load(tmp_path / "run" / "model.npz")

@@ -136,14 +136,18 @@ class CommandAgent:
         value = self.branches[nxt].value(next_state)
         return self.current.learn(state, action, reward, next_state, next_value=value)
 
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Write every branch into one versioned .npz, atomically."""
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The model's arrays as `save` writes them: format version, kind, branch names, each branch's arrays."""
         version = SHARED_STRAIGHT_FORMAT_VERSION if self.straight_as_follow else COMMAND_FORMAT_VERSION
         arrays: dict[str, np.ndarray] = {"format_version": np.array(version, dtype=np.int64),
                                          "kind": np.array(COMMAND_KIND), "branches": np.array(BRANCH_NAMES)}
         for name, b in zip(BRANCH_NAMES, self.branches, strict=True):
             arrays.update({f"{name}.{k}": v for k, v in b.to_arrays().items()})
-        save_model_arrays(path, arrays)
+        return arrays
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write every branch into one versioned .npz, atomically."""
+        save_model_arrays(path, self.to_arrays())
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], bootstrap: str = "next-branch") -> CommandAgent:
@@ -152,26 +156,125 @@ class CommandAgent:
         path = os.fspath(path)
         npz = open_model_npz(path)
         with npz:
-            if "kind" not in npz.files:
-                raise BrlInputError(f"model file {path} is a lane-keeping model, not a command-conditioned one")
-            try:
-                kind, version = str(npz["kind"]), int(npz["format_version"])
-                names = [str(n) for n in npz["branches"]]
-            except (KeyError, ValueError, TypeError) as exc:
-                raise BrlInputError(f"model file {path} is unreadable: {_one_line(exc)}") from None
-            if kind != COMMAND_KIND:
-                raise BrlInputError(f"model file {path} is a '{kind}' model, not a command-conditioned one")
-            if version not in (COMMAND_FORMAT_VERSION, SHARED_STRAIGHT_FORMAT_VERSION):
-                raise BrlInputError(f"model file {path} has format version {version}, this brl reads "
-                                    f"{COMMAND_FORMAT_VERSION} and {SHARED_STRAIGHT_FORMAT_VERSION}")
-            if names != list(BRANCH_NAMES):
-                raise BrlInputError(f"model file {path} has branches {names}, expected {list(BRANCH_NAMES)}")
-            branches = []
-            for name in names:
-                branches.append(BayesianAgent._from_npz(_Prefixed(npz, f"{name}."), f"{path} (branch {name})"))
-            if len({(b.state_dim, b.n_actions) for b in branches}) != 1:
-                raise BrlInputError(f"model file {path} has branches of different state sizes or action counts")
+            return cls._from_npz(npz, path, bootstrap)
+
+    @classmethod
+    def _from_npz(cls, npz: Any, path: str, bootstrap: str) -> CommandAgent:
+        """Validate the arrays of an open .npz (or a prefixed view of one) and build the agent."""
+        if "kind" not in npz.files:
+            raise BrlInputError(f"model file {path} is a lane-keeping model, not a command-conditioned one")
+        try:
+            kind, version = str(npz["kind"]), int(npz["format_version"])
+            names = [str(n) for n in npz["branches"]]
+        except (KeyError, ValueError, TypeError) as exc:
+            raise BrlInputError(f"model file {path} is unreadable: {_one_line(exc)}") from None
+        if kind != COMMAND_KIND:
+            raise BrlInputError(f"model file {path} is a '{kind}' model, not a command-conditioned one")
+        if version not in (COMMAND_FORMAT_VERSION, SHARED_STRAIGHT_FORMAT_VERSION):
+            raise BrlInputError(f"model file {path} has format version {version}, this brl reads "
+                                f"{COMMAND_FORMAT_VERSION} and {SHARED_STRAIGHT_FORMAT_VERSION}")
+        if names != list(BRANCH_NAMES):
+            raise BrlInputError(f"model file {path} has branches {names}, expected {list(BRANCH_NAMES)}")
+        branches = []
+        for name in names:
+            branches.append(BayesianAgent._from_npz(_Prefixed(npz, f"{name}."), f"{path} (branch {name})"))
+        if len({(b.state_dim, b.n_actions) for b in branches}) != 1:
+            raise BrlInputError(f"model file {path} has branches of different state sizes or action counts")
         return cls.from_branches(branches, bootstrap, version == SHARED_STRAIGHT_FORMAT_VERSION)
+
+
+TEAMS_KIND = "command-teams"
+"""Kind of a training checkpoint of `TeamAgent` (never a deployable model)."""
+
+
+class TeamAgent:
+    """K command-conditioned agents ("teams") that learn from the same experience (outside the paper).
+
+    In each training episode one team acts (team `episode % K`, `start_episode`); it learns from every step of its
+    episode, and each other team from a random share of them (a bootstrap mask, as in Bootstrapped DQN; without it
+    the teams, which start equal, would stay equal), with its own values (Algorithm 1 inside each branch, as
+    `CommandAgent.learn`; off-policy for a team that did not act, as a Q-learning target is). A branch's trap is a
+    property of one run of learning, so K teams are rarely all trapped in the same branch; `composed` builds the
+    deployable agent from, for each command, the branch of the team whose own acting steps on that command earned
+    the most reward in a recent window.
+    """
+
+    def __init__(self, teams: list[CommandAgent]) -> None:
+        if len(teams) < 2:
+            raise ValueError(f"a TeamAgent needs at least two teams, got {len(teams)}")
+        self.teams = list(teams)
+        self.acting = 0
+
+    def start_episode(self, episode: int, rng: np.random.Generator) -> None:
+        """Let team `episode % K` act in this episode (and draw its episode-level exploration)."""
+        self.acting = episode % len(self.teams)
+        self.teams[self.acting].begin_episode(rng)
+
+    @property
+    def current_team(self) -> CommandAgent:
+        """The team acting in this episode."""
+        return self.teams[self.acting]
+
+    def set_command(self, command: int) -> None:
+        """Select the branch of a CARLA command code in every team."""
+        for team in self.teams:
+            team.set_command(command)
+
+    def act(self, state: np.ndarray, rng: np.random.Generator, greedy: bool = False) -> int:
+        """The acting team's behaviour (or greedy) action."""
+        return self.current_team.act(state, rng, greedy=greedy)
+
+    def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray,
+              next_command: int | None = None, mask: np.ndarray | None = None) -> LearnStep:
+        """One learning step in the acting team and in every other team whose `mask` entry is true (all without a
+        mask); returns the acting team's."""
+        out = None
+        for k, team in enumerate(self.teams):
+            if k == self.acting or mask is None or mask[k]:
+                step = team.learn(state, action, reward, next_state, next_command)
+                out = step if k == self.acting else out
+        assert out is not None
+        return out
+
+    @property
+    def branch(self) -> int:
+        """Index of the branch in use (into BRANCH_NAMES)."""
+        return self.current_team.branch
+
+    def __getattr__(self, name: str) -> Any:
+        """Schedules and sizes (alpha, tau, rho, n_components, ...) are the acting team's."""
+        if name in ("alpha", "tau", "rho", "n_components", "state_dim", "n_actions"):
+            return getattr(self.teams[self.__dict__["acting"]], name)
+        raise AttributeError(name)
+
+    def composed(self, choice: list[int]) -> CommandAgent:
+        """The deployable agent: for each branch (BRANCH_NAMES order), that branch of team `choice[branch]`."""
+        first = self.teams[0]
+        return CommandAgent.from_branches([self.teams[k].branches[b] for b, k in enumerate(choice)],
+                                          first.bootstrap, first.straight_as_follow)
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write every team (a training checkpoint) into one versioned .npz, atomically."""
+        arrays: dict[str, np.ndarray] = {"format_version": np.array(COMMAND_FORMAT_VERSION, dtype=np.int64),
+                                         "kind": np.array(TEAMS_KIND), "teams": np.array(len(self.teams))}
+        for k, team in enumerate(self.teams):
+            arrays.update({f"team{k}.{key}": v for key, v in team.to_arrays().items()})
+        save_model_arrays(path, arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str], bootstrap: str = "next-branch") -> TeamAgent:
+        """Read a checkpoint written by `save`; a foreign or corrupt file raises BrlInputError."""
+        path = os.fspath(path)
+        npz = open_model_npz(path)
+        with npz:
+            try:
+                kind, n = str(npz["kind"]), int(npz["teams"])
+            except (KeyError, ValueError, TypeError) as exc:
+                raise BrlInputError(f"checkpoint {path} is not a team checkpoint: {_one_line(exc)}") from None
+            if kind != TEAMS_KIND or n < 2:
+                raise BrlInputError(f"checkpoint {path} is a '{kind}' file with {n} teams, not a team checkpoint")
+            return cls([CommandAgent._from_npz(_Prefixed(npz, f"team{k}."), f"{path} (team {k})", bootstrap)
+                        for k in range(n)])
 
 
 class _Prefixed:
