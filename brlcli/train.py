@@ -459,12 +459,15 @@ def _team_means(cfg: TrainConfig, stats: dict) -> np.ndarray:
     return out
 
 
+def _team_choice(team_means: np.ndarray) -> list[int]:
+    """Per command, the team with the highest mean reward (`_team_means`; a team that did not act never wins a tie
+    against one that did; ties go to the lower team)."""
+    return [int(i) for i in np.argmax(np.nan_to_num(team_means, nan=-np.inf), axis=0)]
+
+
 def _deployable(agent: Any, cfg: TrainConfig, stats: dict) -> Any:
     """The agent to evaluate and ship: itself, or TeamAgent.composed of the best team per command lately."""
-    if cfg.teams == 1:
-        return agent
-    means = np.nan_to_num(_team_means(cfg, stats), nan=-np.inf)
-    return agent.composed([int(np.argmax(means[:, b])) for b in range(len(BRANCH_NAMES))])
+    return agent if cfg.teams == 1 else agent.composed(_team_choice(_team_means(cfg, stats)))
 
 
 def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
@@ -558,9 +561,10 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                             del stats["branch_window"][0]
                     recent = [*recent, reward][-100:]
                     if curve is not None and step % cfg.curve_every == 0:
-                        row = curve.evaluate(_deployable(agent, cfg, stats), step)
+                        deployable = _deployable(agent, cfg, stats)
+                        row = curve.evaluate(deployable, step)
                         if cfg.keep_best and _better(row, stats["best"]):
-                            _deployable(agent, cfg, stats).save(run_dir / "model_best.npz")
+                            deployable.save(run_dir / "model_best.npz")
                             stats["best"] = {k: row[k] for k in ("env_steps", "success", "score")}
                     if progress and step % 25 == 0:
                         progress(Progress(cfg.seed, step, stats["attempt_start"] + cfg.steps, episode,
@@ -630,8 +634,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     if cfg.teams > 1:
         summary["team_rewards"] = {name: [None if np.isnan(v) else float(v) for v in team_means[:, b]]
                                    for b, name in enumerate(BRANCH_NAMES)}
-        summary["team_choice"] = {name: int(np.argmax(np.nan_to_num(team_means[:, b], nan=-np.inf)))
-                                  for b, name in enumerate(BRANCH_NAMES)}
+        summary["team_choice"] = dict(zip(BRANCH_NAMES, _team_choice(team_means), strict=True))
     if nav:
         summary["components_per_branch"] = dict(zip(BRANCH_NAMES,
                                                      agent.components_per_branch, strict=True))
