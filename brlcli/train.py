@@ -142,6 +142,8 @@ class TrainConfig:
     warm_start_junctions: int = 0  # navigation only, outside the paper: at the end of the episode that reaches
     # this learning step the left, right and straight branches restart from copies of the follow branch
     # (`BayesianAgent.warm_copy`), and later per-branch trap restarts of them copy it too; 0: never
+    shared_mixture: bool = False  # navigation only, outside the paper: the commands share one mixture model, each with
+    # its own block of action values, alpha and tau (CommandAgent shared_mixture); per-branch restarts forget a block
     keep_best: bool = False  # navigation only, outside the paper: model.npz is the curve evaluation (nav_validation)
     # with the highest success (ties: Score, then the later step), not the agent at the end (needs curve_every)
 
@@ -168,6 +170,10 @@ class TrainConfig:
                 or self.warm_start_junctions < 0 or (self.warm_start_junctions and self.task != "navigation"):
             raise BrlInputError("warm_start_junctions needs --task navigation and a learning step >= 0 (0: never), "
                                 f"got {self.warm_start_junctions!r}")
+        if self.shared_mixture and (self.task != "navigation" or self.teams > 1 or self.warm_start_junctions
+                                    or self.straight_as_follow):
+            raise BrlInputError("shared_mixture needs --task navigation and cannot be combined with teams, "
+                                "warm_start_junctions or straight_as_follow")
         if not (self.junction_weight > 0 and self.junction_approaches_m
                 and all(isinstance(a, int | float) and a > 0 for a in self.junction_approaches_m)):
             raise BrlInputError("junction_weight must be > 0 and junction_approaches_m a non-empty list of distances "
@@ -236,7 +242,8 @@ class TrainConfig:
             from brlcli.agent.command import CommandAgent, TeamAgent
 
             teams = [CommandAgent(state_dim=30, n_actions=self.n_actions, params=self.agent_params(),
-                                  bootstrap=self.command_bootstrap, straight_as_follow=self.straight_as_follow)
+                                  bootstrap=self.command_bootstrap, straight_as_follow=self.straight_as_follow,
+                                  shared_mixture=self.shared_mixture)
                      for _ in range(self.teams)]
             return TeamAgent(teams) if self.teams > 1 else teams[0]
         return BayesianAgent(state_dim=30, n_actions=self.n_actions, params=self.agent_params())
@@ -592,7 +599,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                 stats["warm_started"] = step
                 for team in agent.teams if cfg.teams > 1 else [agent]:
                     for k in range(1, len(team.branches)):
-                        team.branches[k] = team.branches[0].warm_copy()
+                        team.restart_branch(k, warm=True)
             for key in _trapped_branches(cfg, step, stats):
                 window = np.asarray(stats["branch_window"]).reshape(-1, 2)
                 k = key % len(BRANCH_NAMES)
@@ -602,8 +609,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                     team = agent.teams[key // len(BRANCH_NAMES)]
                     record["team"] = key // len(BRANCH_NAMES)
                 stats["branch_restarts"].append(record)
-                team.branches[k] = team.branches[0].warm_copy() if k and stats["warm_started"] is not None else \
-                    BayesianAgent(state_dim=30, n_actions=cfg.n_actions, params=cfg.agent_params())
+                team.restart_branch(k, warm=bool(k) and stats["warm_started"] is not None)
             stats["wall_s"] = time.perf_counter() - t0
             ckpt.save(agent, rng, step, episode, step, stats)
     wall = time.perf_counter() - t0 - (curve.eval_s if curve is not None else 0.0)  # learning time only
@@ -618,7 +624,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     summary: dict[str, Any] = {
         "seed": cfg.seed, "steps": step, "episodes": stats["episodes"], "episodes_reaching_goal": stats["goals"],
         "mean_reward": stats["reward_sum"] / max(step, 1),
-        "components": sum(agent.components_per_branch) if nav else agent.n_components,
+        "components": agent.total_components if nav else agent.n_components,
         "alpha": agent.alpha, "tau": agent.tau, "rho": agent.rho, "wall_s": wall, "steps_per_s": step / wall,
     }
     if cfg.restart_below is not None:

@@ -402,3 +402,53 @@ def test_teams_learn_apart_and_ship_the_best_team_per_command(tmp_path: Path) ->
         TrainConfig(task="navigation", teams=2, team_share=0.0)
     with pytest.raises(BrlInputError, match="not a team checkpoint"):
         TeamAgent.load(tmp_path / "run" / "model.npz")
+
+
+def test_shared_mixture_blocks_share_components_and_keep_their_own_values() -> None:
+    rng = np.random.default_rng(4)
+    states = rng.dirichlet(np.ones(30), size=40)
+    agent = BayesianAgent(n_blocks=2)
+    agent.select_block(1)
+    for i in range(39):
+        agent.learn(states[i], int(rng.integers(4)), -20.0, states[i + 1])
+    assert agent.n_components > 1 and agent.steps == 39
+    block1_alpha, block1_tau = agent.alpha, agent.tau
+    agent.select_block(0)  # block 0 never learned: its schedules are the initial ones, its values untouched or
+    fresh = BayesianAgent()  # copied into new components, never updated
+    assert (agent.alpha, agent.tau, agent.steps) == (fresh.alpha, fresh.tau, 0)
+    assert not agent.visits.any()
+    q0 = agent.Q
+    agent.learn(states[0], 2, -30.0, states[1])
+    assert not np.array_equal(agent.Q, q0)
+    agent.select_block(1)
+    assert (agent.alpha, agent.tau, agent.steps) == (block1_alpha, block1_tau, 39)
+    q1 = agent.Q
+    agent.reset_block(0)  # forgetting a block leaves the other one and the components alone
+    assert np.array_equal(agent.Q, q1) and agent.n_components > 1
+    agent.select_block(0)
+    assert np.all(agent.Q == agent.params.init_q) and agent.steps == 0
+    with pytest.raises(ValueError, match="block"):
+        agent.select_block(2)
+
+
+def test_shared_mixture_command_agent_trains_saves_and_loads(tmp_path: Path) -> None:
+    cfg = TrainConfig(task="navigation", steps=150, seed=2, evaluate=False, shared_mixture=True,
+                      branch_restart_below=[10.0] * 4)  # every branch restarts: its block is forgotten
+    summary = train_run(cfg, tmp_path / "run")["summary"]
+    assert summary["branch_restarts"]
+    agent = CommandAgent.load(tmp_path / "run" / "model.npz")
+    assert agent.shared is not None and summary["components"] == agent.shared.n_components
+    assert len(set(summary["components_per_branch"].values())) == 1
+    steps = [b.steps for b in agent.branches]
+    assert 0 < sum(steps) <= 150 and steps[0] > 0
+    again = CommandAgent.load(tmp_path / "run" / "model.npz")
+    rng = np.random.default_rng(0)
+    for s in rng.dirichlet(np.ones(30), size=10):
+        for command in (2, 3, 4, 5):
+            agent.set_command(command)
+            again.set_command(command)
+            assert agent.act(s, rng, greedy=True) == again.act(s, rng, greedy=True)
+    with pytest.raises(BrlInputError, match="shared_mixture"):
+        TrainConfig(shared_mixture=True)
+    with pytest.raises(BrlInputError, match="shared_mixture"):
+        TrainConfig(task="navigation", shared_mixture=True, teams=2)

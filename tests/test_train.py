@@ -35,7 +35,9 @@ def test_same_seed_gives_identical_log_and_model(tmp_path: Path) -> None:
 @pytest.mark.parametrize("params, extra", [({}, {}),
                                            ({"step_size": "action-visits", "exploration": "posterior"}, {}),
                                            ({}, {"task": "navigation"}),
-                                           ({}, {"task": "navigation", "branch_restart_below": [10.0] * 4}),
+                                           ({"exploration": "posterior"},
+                                            {"task": "navigation", "branch_restart_below": [10.0] * 4,
+                                             "shared_mixture": True}),
                                            ({}, {"task": "navigation", "branch_restart_below": [10.0] * 4,
                                                  "warm_start_junctions": 40}),
                                            ({}, {"task": "navigation", "branch_restart_below": [10.0] * 4,
@@ -43,8 +45,9 @@ def test_same_seed_gives_identical_log_and_model(tmp_path: Path) -> None:
 def test_interrupted_run_resumes_bit_identical(tmp_path: Path, params: dict, extra: dict) -> None:
     """Also with per-episode posterior draws (they come from the run's generator after each reset), for the
     command-conditioned agent of the navigation task, and with its per-branch restarts (every branch restarts at
-    both checks when every threshold is above every reward), also from warm copies of the follow branch, and with
-    two teams (TeamAgent) learning from shared experience."""
+    both checks when every threshold is above every reward), also with one mixture shared by the commands (its blocks
+    forgotten at the restarts) and from warm copies of the follow branch, and with two teams (TeamAgent) learning from
+    shared experience."""
     cfg = TrainConfig(steps=150, seed=1, evaluate=False, params={**TrainConfig().params, **params}, **extra)
     train_run(cfg, tmp_path / "full")
 

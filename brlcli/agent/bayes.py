@@ -172,12 +172,19 @@ def _validated_state(state: Any, dim: int, what: str) -> np.ndarray:
 class BayesianAgent:
     """Mixture of NIW components with a Q column each; `learn` is Algorithm 1 of the paper."""
 
-    def __init__(self, state_dim: int = 30, n_actions: int = 4, params: BRLParams | None = None) -> None:
-        """A fresh model: one component with mean 1/D, nu = D, kappa = D + 1, S = init_scatter I, Q = init_q."""
+    def __init__(self, state_dim: int = 30, n_actions: int = 4, params: BRLParams | None = None,
+                 n_blocks: int = 1) -> None:
+        """A fresh model: one component with mean 1/D, nu = D, kappa = D + 1, S = init_scatter I, Q = init_q.
+
+        With `n_blocks` > 1 (the shared-mixture command agent; outside the paper) every component carries that many
+        blocks of action values, each with its own alpha, tau and step count; `select_block` picks the block that
+        acting and learning use, and the components (and rho) are common to all blocks."""
         if isinstance(state_dim, bool) or not isinstance(state_dim, int | np.integer) or state_dim < 1:
             raise ValueError(f"state_dim must be a positive integer, got {state_dim!r}")
         if isinstance(n_actions, bool) or not isinstance(n_actions, int | np.integer) or n_actions < 1:
             raise ValueError(f"n_actions must be a positive integer, got {n_actions!r}")
+        if isinstance(n_blocks, bool) or not isinstance(n_blocks, int | np.integer) or n_blocks < 1:
+            raise ValueError(f"n_blocks must be a positive integer, got {n_blocks!r}")
         params = BRLParams() if params is None else params
         if not isinstance(params, BRLParams):
             raise ValueError(f"params must be a BRLParams, got {type(params).__name__}")
@@ -188,6 +195,9 @@ class BayesianAgent:
         self._tau = params.tau_init
         self._rho = params.rho_init
         self._steps = 0
+        self._n_blocks = int(n_blocks)
+        self._block = 0
+        self._block_schedules = [(self._alpha, self._tau, 0)] * self._n_blocks  # (alpha, tau, steps) per block
         self._n = 0
         self._allocate(min(_INITIAL_CAPACITY, params.max_components))
         self._add_component(np.full(self._dim, 1.0 / self._dim))
@@ -211,17 +221,48 @@ class BayesianAgent:
             if old is not None and n:
                 arr[:n] = getattr(self, name)[:n]
             setattr(self, name, arr)
-        for name in ("_q", "_visits", "_noise"):  # action values, their weighted update counts, the episode's draw
-            arr = np.zeros((self._n_actions, capacity))
+        for name in ("_q_all", "_visits_all", "_noise_all"):  # action values, their weighted update counts, the
+            arr = np.zeros((self._n_blocks * self._n_actions, capacity))  # episode's draw; every block's rows
             if old is not None and n:
                 arr[:, :n] = getattr(self, name)[:, :n]
             setattr(self, name, arr)
+        self._bind_block()
         # likelihood cache: rows of (state, log p(s|m), ||s - mu_m||_inf), always valid for m < n
         self._cache_states = np.zeros((_CACHE_ROWS, dim))
         self._cache_ll = np.zeros((_CACHE_ROWS, capacity))
         self._cache_dist = np.zeros((_CACHE_ROWS, capacity))
         self._cache_keys: list[bytes | None] = [None] * _CACHE_ROWS
         self._cache_last = 0
+
+    def _bind_block(self) -> None:
+        """Point `_q`, `_visits` and `_noise` at the rows of the selected block."""
+        lo = self._block * self._n_actions
+        self._q = self._q_all[lo:lo + self._n_actions]
+        self._visits = self._visits_all[lo:lo + self._n_actions]
+        self._noise = self._noise_all[lo:lo + self._n_actions]
+
+    def select_block(self, block: int) -> None:
+        """Act and learn with block `block`'s action values and schedules (alpha, tau, steps) from now on."""
+        if block == self._block:
+            return
+        if not 0 <= block < self._n_blocks:
+            raise ValueError(f"block must lie in [0, {self._n_blocks}), got {block!r}")
+        self._block_schedules[self._block] = (self._alpha, self._tau, self._steps)
+        self._alpha, self._tau, self._steps = self._block_schedules[block]
+        self._block = int(block)
+        self._bind_block()
+
+    def reset_block(self, block: int) -> None:
+        """Forget block `block`'s action values, visit counts and schedules (its per-branch trap restart); the
+        components and the other blocks stay."""
+        p = self._params
+        lo = block * self._n_actions
+        for arr, value in ((self._q_all, p.init_q), (self._visits_all, 0.0), (self._noise_all, 0.0)):
+            arr[lo:lo + self._n_actions] = value
+        if block == self._block:
+            self._alpha, self._tau, self._steps = p.alpha_init, p.tau_init, 0
+        else:
+            self._block_schedules[block] = (p.alpha_init, p.tau_init, 0)
 
     def _capacity(self) -> int:
         """Number of preallocated component slots."""
@@ -244,9 +285,9 @@ class BayesianAgent:
         self._kappa[m] = dim + 1
         self._scatter[m] = p.init_scatter * np.eye(dim)
         self._chol[m] = math.sqrt(p.init_scatter) * np.eye(dim)
-        self._q[:, m] = p.init_q
-        self._visits[:, m] = 0.0
-        self._noise[:, m] = 0.0  # a component created mid-episode joins the draw at the next episode
+        self._q_all[:, m] = p.init_q
+        self._visits_all[:, m] = 0.0
+        self._noise_all[:, m] = 0.0  # a component created mid-episode joins the draw at the next episode
         self._n = m + 1
         self._refresh(m)
         return m
@@ -255,13 +296,13 @@ class BayesianAgent:
         """A new agent that starts from this one's components and action values, with its schedules (alpha, tau,
         rho) at their initial values and no recorded visits, so that it explores again and its first updates of each
         action value replace the copied one (a branch started from another branch's knowledge; outside the paper)."""
-        agent = BayesianAgent(self._dim, self._n_actions, self._params)
+        agent = BayesianAgent(self._dim, self._n_actions, self._params, self._n_blocks)
         n = self._n
         agent._n = 0
         agent._allocate(self._capacity())
         for name in ("_mean", "_kappa", "_nu", "_scatter", "_chol"):
             getattr(agent, name)[:n] = getattr(self, name)[:n]
-        agent._q[:, :n] = self._q[:, :n]
+        agent._q_all[:, :n] = self._q_all[:, :n]
         agent._n = n
         for m in range(n):
             agent._refresh(m)
@@ -309,6 +350,11 @@ class BayesianAgent:
     def n_actions(self) -> int:
         """Number of actions |A|."""
         return self._n_actions
+
+    @property
+    def n_blocks(self) -> int:
+        """Blocks of action values per component (1 but in the shared-mixture command agent)."""
+        return self._n_blocks
 
     @property
     def n_components(self) -> int:
@@ -394,7 +440,7 @@ class BayesianAgent:
     def begin_episode(self, rng: np.random.Generator) -> None:
         """Start a training episode: under exploration 'posterior' draw the episode's action-value sample."""
         if self._params.exploration == "posterior":
-            self._noise = rng.standard_normal(self._q.shape)
+            self._noise[...] = rng.standard_normal(self._q.shape)
 
     def act(self, state: np.ndarray, rng: np.random.Generator, greedy: bool = False) -> int:
         """Behaviour policy (eq. 11): the greedy action gets (1 - tau)/|A| + tau, the others (1 - tau)/|A|."""
@@ -465,7 +511,7 @@ class BayesianAgent:
         elif self._n < p.max_components:
             m_new = self._add_component(s_t)
             if p.new_q == "nearest":  # m_t's action values, the taken action at the value just observed
-                self._q[:, m_new] = self._q[:, m_t]
+                self._q_all[:, m_new] = self._q_all[:, m_t]  # every block's
                 self._q[a_t, m_new] = self._q[a_t, m_t] + td_error
             else:
                 self._q[a_t, m_new] = p.new_q_taken
@@ -510,6 +556,14 @@ class BayesianAgent:
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The model's arrays as `save` writes them (format version, parameters, components, schedules)."""
         n = self._n
+        blocks: dict[str, np.ndarray] = {}
+        if self._n_blocks > 1:  # the shared-mixture agent: every block's schedules (the scalars are the selected one's)
+            schedules = list(self._block_schedules)
+            schedules[self._block] = (self._alpha, self._tau, self._steps)
+            blocks = {"blocks": np.array(self._n_blocks, dtype=np.int64),
+                      "block_alpha": np.array([s[0] for s in schedules]),
+                      "block_tau": np.array([s[1] for s in schedules]),
+                      "block_steps": np.array([s[2] for s in schedules], dtype=np.int64)}
         return {
             "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
             "params_json": np.array(json.dumps(self._params.to_dict(), sort_keys=True)),
@@ -520,12 +574,13 @@ class BayesianAgent:
             "nu": self._nu[:n],
             "scatter": self._scatter[:n],
             "chol": self._chol[:n],
-            "Q": self._q[:, :n],
-            "visits": self._visits[:, :n],
+            "Q": self._q_all[:, :n],
+            "visits": self._visits_all[:, :n],
             "alpha": np.array(self._alpha),
             "tau": np.array(self._tau),
             "rho": np.array(self._rho),
             "steps": np.array(self._steps, dtype=np.int64),
+            **blocks,
         }
 
     def save(self, path: str | os.PathLike[str]) -> None:
@@ -579,6 +634,10 @@ class BayesianAgent:
         dim, n_actions = scalar("state_dim", "iu"), scalar("n_actions", "iu")
         if dim < 1 or n_actions < 1:
             raise BrlInputError(f"model file {path} has state_dim {dim} and n_actions {n_actions}")
+        n_blocks = scalar("blocks", "iu") if "blocks" in npz.files else 1
+        if n_blocks < 1:
+            raise BrlInputError(f"model file {path} has {n_blocks} blocks of action values")
+        rows = n_blocks * n_actions
         means = get("means")
         if means.ndim != 2 or means.shape[1] != dim:
             raise BrlInputError(f"model file {path}: means has shape {means.shape}, expected (M, {dim})")
@@ -586,7 +645,7 @@ class BayesianAgent:
         if not 1 <= n <= params.max_components:
             raise BrlInputError(f"model file {path} has {n} components, expected 1..{params.max_components}")
         expected = {"means": (n, dim), "kappa": (n,), "nu": (n,), "scatter": (n, dim, dim), "chol": (n, dim, dim),
-                    "Q": (n_actions, n)}
+                    "Q": (rows, n)}
         arrays: dict[str, np.ndarray] = {}
         for key, shape in expected.items():
             arr = get(key)
@@ -596,11 +655,11 @@ class BayesianAgent:
             if not np.isfinite(arr).all():
                 raise BrlInputError(f"model file {path}: '{key}' contains NaN or infinity")
             arrays[key] = arr
-        visits = npz["visits"] if "visits" in npz.files else np.zeros((n_actions, n))  # absent before issue 18
-        if visits.shape != (n_actions, n) or visits.dtype != np.float64 or not np.isfinite(visits).all() \
+        visits = npz["visits"] if "visits" in npz.files else np.zeros((rows, n))  # absent before issue 18
+        if visits.shape != (rows, n) or visits.dtype != np.float64 or not np.isfinite(visits).all() \
                 or (visits < 0).any():
             raise BrlInputError(f"model file {path}: 'visits' must be finite non-negative float64 of shape "
-                                f"{(n_actions, n)}, got shape {visits.shape} dtype {visits.dtype}")
+                                f"{(rows, n)}, got shape {visits.shape} dtype {visits.dtype}")
         chol_diag = np.diagonal(arrays["chol"], axis1=1, axis2=2)
         if (arrays["kappa"] <= 0).any() or (arrays["nu"] <= dim - 1).any() or (chol_diag <= 0).any() \
                 or np.triu(arrays["chol"], k=1).any():
@@ -610,8 +669,15 @@ class BayesianAgent:
         steps = scalar("steps", "iu")
         if not all(math.isfinite(v) for v in schedule.values()) or steps < 0:
             raise BrlInputError(f"model file {path} has invalid schedule values or step count")
+        schedules = [(schedule["alpha"], schedule["tau"], int(steps))]
+        if n_blocks > 1:
+            per_block = [get(key) for key in ("block_alpha", "block_tau", "block_steps")]
+            if any(a.shape != (n_blocks,) for a in per_block) or per_block[2].dtype.kind not in "iu" \
+                    or not all(np.isfinite(a).all() for a in per_block[:2]) or (per_block[2] < 0).any():
+                raise BrlInputError(f"model file {path} has invalid per-block schedules")
+            schedules = [(float(a), float(t), int(k)) for a, t, k in zip(*per_block, strict=True)]
 
-        agent = cls(int(dim), int(n_actions), params)
+        agent = cls(int(dim), int(n_actions), params, int(n_blocks))
         capacity = min(params.max_components, max(_INITIAL_CAPACITY, 1 << (n - 1).bit_length()))
         agent._n = 0
         agent._allocate(capacity)
@@ -620,13 +686,14 @@ class BayesianAgent:
         agent._nu[:n] = arrays["nu"]
         agent._scatter[:n] = arrays["scatter"]
         agent._chol[:n] = arrays["chol"]
-        agent._q[:, :n] = arrays["Q"]
-        agent._visits[:, :n] = visits
+        agent._q_all[:, :n] = arrays["Q"]
+        agent._visits_all[:, :n] = visits
         agent._n = n
         for m in range(n):  # cold path: the caches, computed exactly as learn() computes them
             agent._refresh(m)
-        agent._alpha, agent._tau, agent._rho = schedule["alpha"], schedule["tau"], schedule["rho"]
-        agent._steps = int(steps)
+        agent._block_schedules = schedules
+        agent._alpha, agent._tau, agent._steps = schedules[0]
+        agent._rho = schedule["rho"]
         return agent
 
 

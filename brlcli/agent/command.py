@@ -11,8 +11,14 @@ the pair (state, command) would; `bootstrap="own-branch"` keeps the branch's own
 learns what its last decisions leave to the next one: a turn that ends in the wrong lane looks as good as one that
 ends in the right one).
 
+With `shared_mixture` (outside the paper, the issue's other design) the four commands share one mixture model: one
+`BayesianAgent` whose components carry a block of action values per command (`n_blocks = 4`), each block with its own
+alpha and tau; the branches are views of it (`BlockView`), so the junction commands act on the components that every
+command's data builds, with action values of their own.
+
 Model file: one `.npz` with `format_version`, `kind = "command-conditioned"`, `branches` (the branch names) and,
-for each branch, the arrays of `BayesianAgent.save` under the prefix `<branch>.`.
+for each branch, the arrays of `BayesianAgent.save` under the prefix `<branch>.`; a shared-mixture model (format
+version 3) has the shared agent's arrays under the prefix `shared.` instead.
 """
 
 from __future__ import annotations
@@ -33,27 +39,64 @@ COMMAND_FORMAT_VERSION = 1
 SHARED_STRAIGHT_FORMAT_VERSION = 2
 """Version of a file whose "go straight" command acts with the follow branch (`straight_as_follow`; brl before it
 would read such a file as four branches and act with the empty straight one, so it refuses the version)."""
+SHARED_MIXTURE_FORMAT_VERSION = 3
+"""Version of a file whose commands share one mixture model (`shared_mixture`)."""
 STRAIGHT = BRANCH_NAMES.index("straight")
 COMMAND_KIND = "command-conditioned"
 BOOTSTRAPS = ("next-branch", "own-branch")
 """Where a learning step whose next decision has another command takes the value of s_{t+1} from."""
 
 
+class BlockView:
+    """One command's block of action values in a shared-mixture agent, used as that command's branch: every
+    attribute (act, learn, value, alpha, Q, ...) is the shared agent's with the block selected first."""
+
+    def __init__(self, agent: BayesianAgent, block: int) -> None:
+        self.agent = agent
+        self.block = block
+
+    def __getattr__(self, name: str) -> Any:
+        agent = self.__dict__["agent"]
+        agent.select_block(self.__dict__["block"])
+        return getattr(agent, name)
+
+
 class CommandAgent:
     """Four Bayesian RL agents, one per route command; `set_command` picks the branch `act` and `learn` use."""
 
     def __init__(self, state_dim: int = 30, n_actions: int = 4, params: BRLParams | None = None,
-                 bootstrap: str = "next-branch", straight_as_follow: bool = False) -> None:
-        self._setup([BayesianAgent(state_dim, n_actions, params) for _ in BRANCH_NAMES], bootstrap,
-                    straight_as_follow)
+                 bootstrap: str = "next-branch", straight_as_follow: bool = False,
+                 shared_mixture: bool = False) -> None:
+        if shared_mixture:
+            self._setup_shared(BayesianAgent(state_dim, n_actions, params, n_blocks=len(BRANCH_NAMES)), bootstrap)
+        else:
+            self._setup([BayesianAgent(state_dim, n_actions, params) for _ in BRANCH_NAMES], bootstrap,
+                        straight_as_follow)
 
-    def _setup(self, branches: list[BayesianAgent], bootstrap: str, straight_as_follow: bool = False) -> None:
+    def _setup(self, branches: list[Any], bootstrap: str, straight_as_follow: bool = False,
+               shared: BayesianAgent | None = None) -> None:
         if bootstrap not in BOOTSTRAPS:
             raise ValueError(f"bootstrap must be one of {', '.join(BOOTSTRAPS)}, got {bootstrap!r}")
         self.branches = list(branches)
         self._branch = 0
         self.bootstrap = bootstrap
         self.straight_as_follow = bool(straight_as_follow)  # "go straight" acts and learns in the follow branch
+        self.shared = shared  # the shared-mixture agent whose blocks the branches are (None: four agents)
+
+    def _setup_shared(self, shared: BayesianAgent, bootstrap: str) -> None:
+        if shared.n_blocks != len(BRANCH_NAMES):
+            raise ValueError(f"a shared-mixture agent needs {len(BRANCH_NAMES)} blocks, got {shared.n_blocks}")
+        self._setup([BlockView(shared, b) for b in range(len(BRANCH_NAMES))], bootstrap, shared=shared)
+
+    def restart_branch(self, branch: int, warm: bool = False) -> None:
+        """Restart one branch (its per-branch trap restart): a fresh agent, a `warm_copy` of the follow branch
+        (`warm`), or, with a shared mixture, its block of action values forgotten (the components stay)."""
+        if self.shared is not None:
+            self.shared.reset_block(branch)
+            return
+        first = self.branches[0]
+        self.branches[branch] = first.warm_copy() if warm else BayesianAgent(first.state_dim, first.n_actions,
+                                                                               first.params)
 
     @classmethod
     def from_branches(cls, branches: list[BayesianAgent], bootstrap: str = "next-branch",
@@ -99,8 +142,13 @@ class CommandAgent:
 
     @property
     def components_per_branch(self) -> list[int]:
-        """Components of every branch, in BRANCH_NAMES order."""
+        """Components of every branch, in BRANCH_NAMES order (with a shared mixture, the same for every branch)."""
         return [b.n_components for b in self.branches]
+
+    @property
+    def total_components(self) -> int:
+        """Components of the whole agent (the shared mixture's, or the sum over the branches)."""
+        return self.shared.n_components if self.shared is not None else sum(self.components_per_branch)
 
     @property
     def alpha(self) -> float:
@@ -139,8 +187,13 @@ class CommandAgent:
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The model's arrays as `save` writes them: format version, kind, branch names, each branch's arrays."""
         version = SHARED_STRAIGHT_FORMAT_VERSION if self.straight_as_follow else COMMAND_FORMAT_VERSION
+        if self.shared is not None:
+            version = SHARED_MIXTURE_FORMAT_VERSION
         arrays: dict[str, np.ndarray] = {"format_version": np.array(version, dtype=np.int64),
                                          "kind": np.array(COMMAND_KIND), "branches": np.array(BRANCH_NAMES)}
+        if self.shared is not None:
+            arrays.update({f"shared.{k}": v for k, v in self.shared.to_arrays().items()})
+            return arrays
         for name, b in zip(BRANCH_NAMES, self.branches, strict=True):
             arrays.update({f"{name}.{k}": v for k, v in b.to_arrays().items()})
         return arrays
@@ -170,11 +223,20 @@ class CommandAgent:
             raise BrlInputError(f"model file {path} is unreadable: {_one_line(exc)}") from None
         if kind != COMMAND_KIND:
             raise BrlInputError(f"model file {path} is a '{kind}' model, not a command-conditioned one")
-        if version not in (COMMAND_FORMAT_VERSION, SHARED_STRAIGHT_FORMAT_VERSION):
+        known = (COMMAND_FORMAT_VERSION, SHARED_STRAIGHT_FORMAT_VERSION, SHARED_MIXTURE_FORMAT_VERSION)
+        if version not in known:
             raise BrlInputError(f"model file {path} has format version {version}, this brl reads "
-                                f"{COMMAND_FORMAT_VERSION} and {SHARED_STRAIGHT_FORMAT_VERSION}")
+                                f"{', '.join(map(str, known))}")
         if names != list(BRANCH_NAMES):
             raise BrlInputError(f"model file {path} has branches {names}, expected {list(BRANCH_NAMES)}")
+        if version == SHARED_MIXTURE_FORMAT_VERSION:
+            shared = BayesianAgent._from_npz(_Prefixed(npz, "shared."), f"{path} (shared mixture)")
+            if shared.n_blocks != len(BRANCH_NAMES):
+                raise BrlInputError(f"model file {path} has a shared mixture with {shared.n_blocks} blocks of action "
+                                    f"values, expected {len(BRANCH_NAMES)}")
+            agent = cls.__new__(cls)
+            agent._setup_shared(shared, bootstrap)
+            return agent
         branches = []
         for name in names:
             branches.append(BayesianAgent._from_npz(_Prefixed(npz, f"{name}."), f"{path} (branch {name})"))
