@@ -196,10 +196,12 @@ def train(
                TextColumn("reward {task.fields[reward]:7.2f}  TD {task.fields[td]:8.2f}  comps {task.fields[comps]}"),
                TimeElapsedColumn())
     with Progress(*columns, console=console, transient=False) as bar:
-        tasks = {s: bar.add_task("", total=steps, seed=s, reward=0.0, td=0.0, comps=1) for s in seed_list}
+        tasks = {(s, k): bar.add_task("", total=steps, seed=s if cfg.committee == 1 else f"{s} member {k}",
+                                      reward=0.0, td=0.0, comps=1)
+                 for s in seed_list for k in range(cfg.committee)}
 
         def report(p) -> None:  # p: brlcli.train.Progress
-            bar.update(tasks[p.seed], completed=p.step, total=p.steps, reward=p.mean_reward, td=p.td_error,
+            bar.update(tasks[(p.seed, p.member)], completed=p.step, total=p.steps, reward=p.mean_reward, td=p.td_error,
                        comps=p.components)
 
         try:
@@ -219,6 +221,8 @@ def train_summary_line(s: dict) -> str:
     """One trained model's end-of-run line: totals, and the greedy evaluation's success beside Either and Score."""
     line = (f"seed {s['seed']}: {s['steps']} steps, {s['episodes']} episodes, {s['components']} components, "
             f"{s['steps_per_s']:.0f} steps/s")
+    if s.get("committee"):
+        line += f" (a committee of {s['committee']} members, majority vote)"
     if s.get("restarts"):
         line += f" ({len(s['restarts'])} restart{'s' if len(s['restarts']) > 1 else ''})"
     ev = s.get("eval")

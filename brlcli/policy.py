@@ -178,7 +178,7 @@ class BRLPolicy(StatePolicy):
 
     def __init__(self, name: str, model: str, deploy: str = "gt", segnet: str | None = None) -> None:
         from brlcli.agent import BayesianAgent
-        from brlcli.agent.command import CommandAgent, is_command_model
+        from brlcli.agent.command import is_command_model, load_navigation_agent
 
         check_input_source(deploy)
         self.task = model_task(Path(model))
@@ -186,7 +186,7 @@ class BRLPolicy(StatePolicy):
         if command != (self.task == "navigation"):
             raise BrlInputError(f"model {model} is {'' if command else 'not '}command-conditioned but its "
                                 f"config.json says task {self.task}")
-        self.agent = CommandAgent.load(model) if command else BayesianAgent.load(model)
+        self.agent = load_navigation_agent(model) if command else BayesianAgent.load(model)
         if self.agent.state_dim != STATE_DIM or not len(ACTIONS) - 1 <= self.agent.n_actions <= len(ACTIONS):
             raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and "
                                 f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)} "

@@ -144,6 +144,10 @@ class TrainConfig:
     # (`BayesianAgent.warm_copy`), and later per-branch trap restarts of them copy it too; 0: never
     shared_mixture: bool = False  # navigation only, outside the paper: the commands share one mixture model, each with
     # its own block of action values, alpha and tau (CommandAgent shared_mixture); per-branch restarts forget a block
+    committee: int = 1  # navigation only, outside the paper: K > 1 trains K command-conditioned agents apart (members
+    # 0..K-1, each the whole run's steps, in member_<k>/) and ships them as one model that acts by majority vote
+    member: int = 0  # which committee member a run is: member 0 is the seed's own run, member k > 0 draws its
+    # generators from (seed, k) as well
     keep_best: bool = False  # navigation only, outside the paper: model.npz is the curve evaluation (nav_validation)
     # with the highest success (ties: Score, then the later step), not the agent at the end (needs curve_every)
 
@@ -174,6 +178,14 @@ class TrainConfig:
                                     or self.straight_as_follow):
             raise BrlInputError("shared_mixture needs --task navigation and cannot be combined with teams, "
                                 "warm_start_junctions or straight_as_follow")
+        for name in ("committee", "member"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "committee" else 0):
+                raise BrlInputError(f"{name} must be an integer >= {1 if name == 'committee' else 0}, got {value!r}")
+        if self.committee > 1 and (self.task != "navigation" or self.teams > 1 or self.shared_mixture
+                                   or self.curve_every or self.keep_best or self.member):
+            raise BrlInputError("committee needs --task navigation and cannot be combined with teams, shared_mixture, "
+                                "--curve-every or keep_best")
         if not (self.junction_weight > 0 and self.junction_approaches_m
                 and all(isinstance(a, int | float) and a > 0 for a in self.junction_approaches_m)):
             raise BrlInputError("junction_weight must be > 0 and junction_approaches_m a non-empty list of distances "
@@ -226,6 +238,10 @@ class TrainConfig:
             d["route_kinds"] = tuple(d["route_kinds"])
         return cls(**d)
 
+    def member_config(self, member: int) -> TrainConfig:
+        """The configuration of committee member `member`'s own run (one agent, that member's generators)."""
+        return TrainConfig.from_dict({**self.to_dict(), "committee": 1, "member": member})
+
     def reward_params(self) -> RewardParams:
         """The reward's parameters for this run."""
         return RewardParams(target_speed_kmh=self.target_speed_kmh, road_view=self.road_view)
@@ -275,10 +291,11 @@ class Progress:
     td_error: float
     components: int
     done: bool = False
+    member: int = 0  # committee member (TrainConfig.member)
 
 
-def _episode_seed(seed: int, episode: int) -> int:
-    return int(np.random.default_rng([seed, episode, 7]).integers(2**31))
+def _episode_seed(seed: int, episode: int, member: int = 0) -> int:
+    return int(np.random.default_rng([seed, episode, 7, *([member] if member else [])]).integers(2**31))
 
 
 def check_inputs(cfg: TrainConfig) -> None:
@@ -494,13 +511,15 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         atomic_write_json(config_path, record)
     if (run_dir / "summary.json").exists():
         return json.loads((run_dir / "summary.json").read_text())
+    if cfg.committee > 1:
+        return _train_committee(cfg, run_dir, resume, progress)
     env = _make_env(cfg)
     ckpt = _Checkpoint(run_dir)
     loaded = ckpt.load(cfg) if resume else None
     log_path = run_dir / "log.csv"
     if loaded is None:
         agent = cfg.new_agent()
-        rng = np.random.default_rng([cfg.seed, 1])
+        rng = np.random.default_rng([cfg.seed, 1, *([cfg.member] if cfg.member else [])])
         step, episode, stats = 0, 0, {"episodes": 0, "goals": 0, "reward_sum": 0.0, "wall_s": 0.0}
         atomic_write_bytes(log_path, (",".join(LOG_COLUMNS) + "\n").encode())
     else:
@@ -525,7 +544,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     td = 0.0
     with open(log_path, "a", newline="") as fh:
         while step - stats["attempt_start"] < cfg.steps:
-            obs, reset_info = env.reset(seed=_episode_seed(cfg.seed, episode))
+            obs, reset_info = env.reset(seed=_episode_seed(cfg.seed, episode, cfg.member))
             command = reset_info["command"]
             if cfg.teams > 1:
                 agent.start_episode(episode, rng)
@@ -576,7 +595,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
                     if progress and step % 25 == 0:
                         progress(Progress(cfg.seed, step, stats["attempt_start"] + cfg.steps, episode,
                                           float(np.mean(recent)), td,
-                                          agent.n_components))
+                                          agent.n_components, member=cfg.member))
                 decision += 1
                 state = next_state
                 command = info["command"]
@@ -661,7 +680,38 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     atomic_write_json(run_dir / "summary.json", {**provenance(cfg.to_dict()), "summary": summary})
     if progress:
         progress(Progress(cfg.seed, step, step, episode, float(np.mean(recent)) if recent else 0.0, td,
-                          agent.n_components, done=True))
+                          agent.n_components, done=True, member=cfg.member))
+    return {**provenance(cfg.to_dict()), "summary": summary}
+
+
+def _train_committee(cfg: TrainConfig, run_dir: Path, resume: bool,
+                     progress: Callable[[Progress], None] | None) -> dict[str, Any]:
+    """Train (or resume, or read) each member's run in run_dir/member_<k>, then write the committee's model.npz and
+    summary.json (its nav_validation figures are the committee's, voting)."""
+    from brlcli.agent.command import CommandAgent, CommitteeAgent
+
+    members = []
+    for k in range(cfg.committee):
+        sub = run_dir / f"member_{k}"
+        members.append(train_run(cfg.member_config(k), sub, resume=resume or (sub / "summary.json").exists(),
+                                 progress=progress)["summary"])
+    agent = CommitteeAgent([CommandAgent.load(run_dir / f"member_{k}" / "model.npz") for k in range(cfg.committee)])
+    agent.save(run_dir / "model.npz")
+    wall = sum(m["wall_s"] for m in members)
+    summary: dict[str, Any] = {
+        "seed": cfg.seed, "committee": cfg.committee, "vote": "majority",
+        "steps": sum(m["steps"] for m in members), "episodes": sum(m["episodes"] for m in members),
+        "episodes_reaching_goal": sum(m["episodes_reaching_goal"] for m in members),
+        "mean_reward": float(np.mean([m["mean_reward"] for m in members])),
+        "components": agent.total_components, "wall_s": wall, "steps_per_s": sum(m["steps"] for m in members) / wall,
+        "members": [{"member": k, **{key: m[key] for key in ("steps", "mean_reward", "wall_s") if key in m},
+                     "branch_restarts": len(m.get("branch_restarts", [])),
+                     **({"eval_success_rate": m["eval"]["success_rate"]} if "eval" in m else {})}
+                    for k, m in enumerate(members)],
+    }
+    if cfg.evaluate:
+        summary["eval"] = evaluate_navigation(agent, cfg)
+    atomic_write_json(run_dir / "summary.json", {**provenance(cfg.to_dict()), "summary": summary})
     return {**provenance(cfg.to_dict()), "summary": summary}
 
 
@@ -750,6 +800,11 @@ def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, 
         atomic_write_json(out / "run.json", provenance({**cfg.to_dict(), "seeds": seeds, "workers": workers},
                                                       kind="train"))
         items = [(c.to_dict(), str(run_dir_for(out, c.seed).resolve()), resume) for c in cfgs]
+        if cfg.committee > 1:  # the members first, every (seed, member) one task, then each seed's committee
+            members = [(c.member_config(k).to_dict(), str(run_dir_for(out, c.seed).resolve() / f"member_{k}"), resume)
+                       for c in cfgs for k in range(cfg.committee)]
+            for _ in run_tasks(_train_task, members, executor=ex, on_report=progress):
+                pass
         results: list[dict[str, Any]] = [{} for _ in items]
         for i, result in run_tasks(_train_task, items, executor=ex, on_report=progress):
             results[i] = result

@@ -339,6 +339,99 @@ class TeamAgent:
                         for k in range(n)])
 
 
+COMMITTEE_KIND = "command-committee"
+COMMITTEE_FORMAT_VERSION = 1
+"""Version of a committee model file."""
+
+
+def majority_vote(probabilities: np.ndarray) -> int:
+    """The action most members choose greedily, given each member's p(a|s) as rows (K, |A|); a tie goes to the
+    tied action with the highest mean p(a|s), then to the lowest index."""
+    probabilities = np.asarray(probabilities, dtype=float)
+    counts = np.bincount(probabilities.argmax(axis=1), minlength=probabilities.shape[1])
+    return int(np.argmax(np.where(counts == counts.max(), probabilities.mean(axis=0), -np.inf)))
+
+
+class CommitteeAgent:
+    """K command-conditioned agents trained apart (`brl train --task navigation --set committee=K`; outside the
+    paper) that drive together: at each decision every member's branch of the command picks its greedy action and
+    the committee takes the majority's (`majority_vote`). A trapped branch is a property of one run of learning,
+    so the other members outvote it where it errs."""
+
+    def __init__(self, members: list[CommandAgent]) -> None:
+        if len(members) < 2:
+            raise ValueError(f"a committee needs at least two members, got {len(members)}")
+        if len({(m.state_dim, m.n_actions) for m in members}) != 1:
+            raise ValueError("committee members must share the state size and the action count")
+        self.members = list(members)
+
+    @property
+    def state_dim(self) -> int:
+        """Length of the state vector."""
+        return self.members[0].state_dim
+
+    @property
+    def n_actions(self) -> int:
+        """Number of action primitives."""
+        return self.members[0].n_actions
+
+    @property
+    def total_components(self) -> int:
+        """Components of all members together."""
+        return sum(m.total_components for m in self.members)
+
+    def set_command(self, command: int) -> None:
+        """Select the branch of a CARLA command code in every member."""
+        for m in self.members:
+            m.set_command(command)
+
+    def act(self, state: np.ndarray, rng: np.random.Generator, greedy: bool = False) -> int:
+        """The majority's greedy action (a committee only acts greedily: its members train apart)."""
+        if not greedy:
+            raise ValueError("a committee acts greedily only; its members explore in their own training runs")
+        return majority_vote(np.array([m.current.action_probabilities(state) for m in self.members]))
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Format version, kind, member count and each member's arrays under `member<k>.`."""
+        arrays: dict[str, np.ndarray] = {"format_version": np.array(COMMITTEE_FORMAT_VERSION, dtype=np.int64),
+                                         "kind": np.array(COMMITTEE_KIND), "members": np.array(len(self.members))}
+        for k, member in enumerate(self.members):
+            arrays.update({f"member{k}.{key}": v for key, v in member.to_arrays().items()})
+        return arrays
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write every member into one versioned .npz, atomically."""
+        save_model_arrays(path, self.to_arrays())
+
+    @classmethod
+    def _from_npz(cls, npz: Any, path: str) -> CommitteeAgent:
+        """Validate the arrays of an open committee .npz and build the agent."""
+        try:
+            version, n = int(npz["format_version"]), int(npz["members"])
+        except (KeyError, ValueError, TypeError) as exc:
+            raise BrlInputError(f"model file {path} is unreadable: {_one_line(exc)}") from None
+        if version != COMMITTEE_FORMAT_VERSION or n < 2:
+            raise BrlInputError(f"model file {path} is a committee of format version {version} with {n} members; "
+                                f"this brl reads version {COMMITTEE_FORMAT_VERSION} with at least two")
+        members = [CommandAgent._from_npz(_Prefixed(npz, f"member{k}."), f"{path} (member {k})", "next-branch")
+                   for k in range(n)]
+        try:
+            return cls(members)
+        except ValueError as exc:
+            raise BrlInputError(f"model file {path}: {exc}") from None
+
+
+def load_navigation_agent(path: str | os.PathLike[str]) -> CommandAgent | CommitteeAgent:
+    """A deployable navigation model: a command-conditioned agent or a committee of them (BrlInputError otherwise)."""
+    path = os.fspath(path)
+    npz = open_model_npz(path)
+    with npz:
+        kind = str(npz["kind"]) if "kind" in npz.files else ""
+        if kind == COMMITTEE_KIND:
+            return CommitteeAgent._from_npz(npz, path)
+        return CommandAgent._from_npz(npz, path, "next-branch")
+
+
 class _Prefixed:
     """The entries of an open .npz under a key prefix, with the `files` / `[]` interface `_from_npz` reads."""
 
