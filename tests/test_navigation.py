@@ -452,3 +452,44 @@ def test_shared_mixture_command_agent_trains_saves_and_loads(tmp_path: Path) -> 
         TrainConfig(shared_mixture=True)
     with pytest.raises(BrlInputError, match="shared_mixture"):
         TrainConfig(task="navigation", shared_mixture=True, teams=2)
+
+
+def test_majority_vote_takes_the_most_chosen_action_and_breaks_ties_by_mean_probability() -> None:
+    from brlcli.agent.command import majority_vote
+
+    probs = np.array([[0.1, 0.6, 0.2, 0.1], [0.2, 0.5, 0.2, 0.1], [0.9, 0.0, 0.05, 0.05]])
+    assert majority_vote(probs) == 1  # two of three choose right, though forward has the largest single p
+    tie = np.array([[0.7, 0.1, 0.1, 0.1], [0.1, 0.2, 0.6, 0.1], [0.1, 0.1, 0.1, 0.7]])
+    assert majority_vote(tie) == 0  # one vote each: the highest mean p(a|s) among the tied actions
+    assert majority_vote(np.array([[0.25] * 4] * 2)) == 0
+
+
+def test_a_committee_trains_its_members_apart_and_drives_by_vote(tmp_path: Path) -> None:
+    from brlcli.agent.command import CommitteeAgent, load_navigation_agent
+    from brlcli.policy import BRLPolicy
+
+    cfg = TrainConfig(task="navigation", steps=120, seed=2, evaluate=False, committee=2)
+    summary = train_run(cfg, tmp_path / "com")["summary"]
+    assert summary["committee"] == 2 and summary["steps"] == 240 and len(summary["members"]) == 2
+    train_run(TrainConfig(task="navigation", steps=120, seed=2, evaluate=False), tmp_path / "plain")
+    logs = [(tmp_path / d / "log.csv").read_bytes() for d in ("com/member_0", "plain", "com/member_1")]
+    assert logs[0] == logs[1] and logs[2] != logs[0]  # member 0 is the seed's own run, member 1 another
+    agent = load_navigation_agent(tmp_path / "com" / "model.npz")
+    assert isinstance(agent, CommitteeAgent) and len(agent.members) == 2
+    members = [CommandAgent.load(tmp_path / "com" / f"member_{k}" / "model.npz") for k in range(2)]
+    rng = np.random.default_rng(0)
+    policy = BRLPolicy("brl", str(tmp_path / "com" / "model.npz"))
+    for s, c in zip(rng.dirichlet(np.ones(30), size=30), rng.choice([2, 3, 4, 5], size=30), strict=True):
+        for m in members:
+            m.set_command(int(c))
+        probs = np.array([m.current.action_probabilities(s) for m in members])
+        expected = probs.argmax(1)[0] if probs.argmax(1)[0] == probs.argmax(1)[1] else int(probs.mean(0).argmax())
+        assert policy.act(s, int(c)) == expected
+    with pytest.raises(ValueError, match="greedily"):
+        agent.act(np.full(30, 1 / 30), rng)
+    with pytest.raises(BrlInputError, match="committee"):
+        TrainConfig(committee=2)
+    with pytest.raises(BrlInputError, match="committee"):
+        TrainConfig(task="navigation", committee=0)
+    with pytest.raises(BrlInputError, match="not a command-conditioned one"):  # a single agent's loader refuses it
+        CommandAgent.load(tmp_path / "com" / "model.npz")

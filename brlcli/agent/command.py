@@ -217,12 +217,16 @@ class CommandAgent:
         if "kind" not in npz.files:
             raise BrlInputError(f"model file {path} is a lane-keeping model, not a command-conditioned one")
         try:
-            kind, version = str(npz["kind"]), int(npz["format_version"])
-            names = [str(n) for n in npz["branches"]]
-        except (KeyError, ValueError, TypeError) as exc:
+            kind = str(npz["kind"])
+        except ValueError as exc:
             raise BrlInputError(f"model file {path} is unreadable: {_one_line(exc)}") from None
         if kind != COMMAND_KIND:
             raise BrlInputError(f"model file {path} is a '{kind}' model, not a command-conditioned one")
+        try:
+            version = int(npz["format_version"])
+            names = [str(n) for n in npz["branches"]]
+        except (KeyError, ValueError, TypeError) as exc:
+            raise BrlInputError(f"model file {path} is unreadable: {_one_line(exc)}") from None
         known = (COMMAND_FORMAT_VERSION, SHARED_STRAIGHT_FORMAT_VERSION, SHARED_MIXTURE_FORMAT_VERSION)
         if version not in known:
             raise BrlInputError(f"model file {path} has format version {version}, this brl reads "
