@@ -4,7 +4,8 @@
 
 Reads the `results.jsonl` of `brl bench` results directories (one row per episode) and prints, per policy group
 (the part of the policy name before '/', e.g. nav9) and task, the success of each model (pooled over conditions and
-weathers), their mean ± std, best and worst, and the success per condition averaged over the models. Markdown.
+weathers), their mean ± sample std (ddof 1), best and worst, and the success per condition averaged over the
+models. Markdown.
 """
 
 from __future__ import annotations
@@ -45,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
         n = sorted({len(v) for v in models.values()})
         per_cond = [f"{100 * np.mean(cond[(group, task, c)]):.1f}" if cond[(group, task, c)] else "–"
                     for c in conditions]
-        print(f"| {group} ({len(models)}) | {task} | {'/'.join(map(str, n))} | {rates.mean():.1f} ± {rates.std():.1f} "
+        std = rates.std(ddof=1) if len(rates) > 1 else 0.0
+        print(f"| {group} ({len(models)}) | {task} | {'/'.join(map(str, n))} | {rates.mean():.1f} ± {std:.1f} "
               f"| {rates.max():.1f} | {rates.min():.1f} | " + " | ".join(per_cond) + " |")
     return 0
 
