@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import errno
+import signal
 import sys
+import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -931,11 +933,19 @@ WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES,
 """OSErrors that mean the output could not be written (disk full, permissions changed, read-only filesystem)."""
 
 
+def _stop_on_sigterm(signum: int, frame: Any) -> None:
+    """SIGTERM (`kill`, `docker stop`) ends a run as Ctrl-C does: finished work is saved, worker processes are
+    stopped, one line is printed and the exit code is 130 (the run can be resumed)."""
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point: run the app. Bad input (ours or a usage error) prints one line and exits with 2; an output
     that cannot be written at run time prints one line and exits with 1 (the directory stays resumable)."""
     from brlcli.errors import BrlInputError, BrlWriteError
 
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _stop_on_sigterm)
     args = sys.argv[1:] if argv is None else list(argv)
     if not args:
         args = ["--help"]  # brl alone: the help, exit 0

@@ -1,7 +1,9 @@
 """brl bench: suites, deterministic subsets and shards, resume, worker independence, bad input."""
 
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -243,3 +245,25 @@ def test_without_a_model_the_shipped_gt_set_is_used() -> None:
     for _, path in found:
         agent = BayesianAgent.load(path)
         assert agent.state_dim == 30 and agent.n_actions == 4
+
+
+def test_bench_stopped_by_sigterm_saves_its_episodes_and_prints_no_traceback(tmp_path: Path) -> None:
+    out = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, "-m", "brlcli.cli", "bench", "--agent", "autopilot", "--suite",
+                             "corl2017", "--tasks", "navigation", "--episodes", "12", "--workers", "2", "--out",
+                             str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    results = out / "results.jsonl"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None:
+        if results.exists() and results.read_text().strip():
+            break
+        time.sleep(0.2)
+    assert proc.poll() is None, "the bench finished before it could be stopped"
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and "Traceback" not in stdout
+    assert "--resume" in stdout + stderr
+    done = read_results(out)
+    assert 1 <= len(done) < 12
+    assert all((out / r["frames_file"]).exists() for r in done)
