@@ -253,14 +253,19 @@ def test_bench_stopped_by_sigterm_saves_its_episodes_and_prints_no_traceback(tmp
                              "corl2017", "--tasks", "navigation", "--episodes", "12", "--workers", "2", "--out",
                              str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     results = out / "results.jsonl"
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and proc.poll() is None:
-        if results.exists() and results.read_text().strip():
-            break
-        time.sleep(0.2)
-    assert proc.poll() is None, "the bench finished before it could be stopped"
-    proc.send_signal(signal.SIGTERM)
-    stdout, stderr = proc.communicate(timeout=60)
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and proc.poll() is None:
+            if results.exists() and results.read_text().strip():
+                break
+            time.sleep(0.2)
+        assert proc.poll() is None, "the bench finished before it could be stopped"
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:  # a failed assertion must not leave the bench running
+            proc.kill()
+            proc.communicate()
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stderr and "Traceback" not in stdout
     assert "--resume" in stdout + stderr
