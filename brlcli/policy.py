@@ -142,6 +142,7 @@ class StatePolicy:
         self.setting = setting
         self.act = act
         self.labeler = labeler
+        self.needs_rgb = labeler is not None  # ground-truth labels need no RGB image
         self.camera = None if camera == CameraConfig() else camera  # None: the bench's default camera
 
     def reset(self, spec: EpisodeSpec, world: Any) -> None:

@@ -29,6 +29,18 @@ def test_observation_is_normalised_state(env: DrivingEnv) -> None:
     assert info["route_length_m"] > 50
 
 
+def test_ground_truth_env_renders_no_rgb_unless_asked(env: DrivingEnv) -> None:
+    env.reset(seed=3)
+    env.step(0)
+    assert env.world.rgb_frames is False and env.render() is None
+    with DrivingEnv(town="town01", routes="training", render_mode="rgb_array") as shown:
+        shown.reset(seed=3)
+        obs, *_ = shown.step(0)
+        assert shown.render().shape == (shown.world.camera.height, shown.world.camera.width, 3)
+    env.reset(seed=3)
+    assert np.array_equal(env.step(0)[0], obs)  # the state is the same with or without the RGB image
+
+
 def test_same_seed_same_episode(env: DrivingEnv) -> None:
     def run(seed: int) -> list:
         obs, _ = env.reset(seed=seed)

@@ -478,6 +478,22 @@ def test_render_false_returns_no_images_and_the_same_measurements(traffic_pair):
     assert (rgb.tobytes(), labels.tobytes(), depth.tobytes()) == _frame_bytes(on[-1])
 
 
+def test_labels_only_render_skips_the_rgb_image_and_keeps_labels_and_depth(traffic_pair):
+    a, _ = traffic_pair
+    frames, _ = _run(a, seed=23, frames=8, render=True)
+    rgb, labels, depth = a.render(rgb=False)
+    assert rgb is None
+    assert (labels.tobytes(), depth.tobytes()) == _frame_bytes(frames[-1])[1:]
+    a.rgb_frames = False  # what a ground-truth training environment sets
+    try:
+        off, _ = _run(a, seed=23, frames=8, render=True)
+    finally:
+        a.rgb_frames = True
+    assert all(f.rgb is None for f in off)
+    assert [(f.labels.tobytes(), f.depth.tobytes()) for f in off] == \
+        [_frame_bytes(f)[1:] for f in frames]
+
+
 def test_two_worlds_step_independently(world):
     spec = _straight_spec(world.town)
     controls = [Control(steer=0.1 * math.sin(i / 3), throttle=0.5) for i in range(25)]

@@ -294,6 +294,7 @@ class ModularPipelinePolicy:
 
     def __init__(self, name: str = "mp", deploy: str = "gt", segnet: str | None = None) -> None:
         self.labeler = labeler_for(deploy, segnet)
+        self.needs_rgb = self.labeler is not None  # ground-truth labels need no RGB image
         self.name = name
         self.deploy = deploy
         self.setting = "MP-DG" if deploy == "gt" else "MP-DE"

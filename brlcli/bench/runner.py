@@ -64,7 +64,7 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
             elif frame.labels is not None:
                 rgb, labels = frame.rgb, frame.labels
             else:
-                rgb, labels = world.render()[:2]
+                rgb, labels = world.render(rgb=getattr(policy, "needs_rgb", True))[:2]
             if replan:
                 command = navigator.command(m.x, m.y, m.yaw_deg)
             else:

@@ -93,6 +93,7 @@ class DrivingEnv(gym.Env):
         self.reward_params = reward or RewardParams()
         self.labeler = labeler  # RGB -> estimated labels (the paper's "estimated" input); None = ground truth
         self.render_mode = render_mode
+        self.world.rgb_frames = labeler is not None or render_mode == "rgb_array"  # GT states need no RGB image
         self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(STATE_DIM,), dtype=np.float32)
         self.action_space = gym.spaces.Discrete(len(ACTIONS))
         self._rgb: np.ndarray | None = None

@@ -98,6 +98,7 @@ class World:
         self._rng = np.random.default_rng(self.seed)
         self._episode = -1
         self.frame_index = 0
+        self.rgb_frames = True  # whether rendered frames carry the RGB image (False: labels and depth only, faster)
         self._collisions = np.zeros(3)  # vehicles, pedestrians, other
         u = (np.arange(FOOTPRINT_SAMPLES[0]) + 0.5) / FOOTPRINT_SAMPLES[0] - 0.5
         v = (np.arange(FOOTPRINT_SAMPLES[1]) + 0.5) / FOOTPRINT_SAMPLES[1] - 0.5
@@ -225,11 +226,12 @@ class World:
         self.frame_index += 1
         return self._make_frame(ctl, render)
 
-    def render(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Camera images at the current state: RGB (H, W, 3) uint8, labels (H, W) uint8, depth (H, W) float32 m."""
+    def render(self, rgb: bool = True) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+        """Camera images at the current state: RGB (H, W, 3) uint8 (None when `rgb` is false; the labels and depth
+        are the same either way), labels (H, W) uint8, depth (H, W) float32 m."""
         rng = np.random.default_rng([self._frame_rng_seed, self.frame_index])
         rgb, labels, depth = self.renderer.render(self.ego.x_m, self.ego.y_m, self.ego.yaw_rad,
-                                                  self.traffic.boxes(), self.weather, rng)
+                                                  self.traffic.boxes(), self.weather, rng, rgb=rgb)
         return rgb, labels, depth  # type: ignore[return-value]
 
     def _make_frame(self, ctl: Control, render: bool) -> Frame:
@@ -246,7 +248,7 @@ class World:
             intersection_offroad=offroad, intersection_otherlane=otherlane,
         )
         if render:
-            rgb, labels, depth = self.render()
+            rgb, labels, depth = self.render(rgb=self.rgb_frames)
             frame = Frame(self.frame_index, m, rgb, labels, depth, ctl)
         else:
             frame = Frame(self.frame_index, m, control=ctl)
