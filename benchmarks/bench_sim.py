@@ -3,7 +3,8 @@
     python benchmarks/bench_sim.py [--repeats 5] [--steps 300] [--json out.json]
 
 Figures: town build time; decision steps/s (7 frames of physics + measurements, then 1 rendered frame of RGB
-and labels at 200x88) in town01 without traffic, with CoRL2017 traffic (20 vehicles, 50 pedestrians) and with
+and labels at 200x88) in town01 without traffic (also with labels only, no RGB image, as in ground-truth runs),
+with CoRL2017 traffic (20 vehicles, 50 pedestrians) and with
 NoCrash's Dense traffic (100 vehicles, 250 pedestrians; issue 20's target: >= 60 steps/s);
 measurement-only frames/s; resident memory growth over 1,000 episode resets. Each figure is the median of
 `--repeats` runs.
@@ -65,6 +66,10 @@ def main() -> None:
     world = World("town01")
     results["decision_steps_per_s_no_traffic"] = statistics.median(
         _decision_steps(world, args.steps) for _ in range(args.repeats))
+    world.rgb_frames = False  # ground-truth runs (GT training and bench): labels and depth, no RGB image
+    results["decision_steps_per_s_no_traffic_labels_only"] = statistics.median(
+        _decision_steps(world, args.steps) for _ in range(args.repeats))
+    world.rgb_frames = True
     frames = []
     for _ in range(args.repeats):
         world.reset(world.town.training_routes[0].start, seed=2)
