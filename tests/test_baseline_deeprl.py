@@ -182,7 +182,7 @@ def test_steps_to_reach_and_the_sample_efficiency_table(tmp_path: Path) -> None:
     assert np.isclose(float(table["DQN (TG)"]["Best mean success [%]"]), 50.0)
 
 
-def test_cli_trains_refuses_to_overwrite_and_rejects_bad_options(tmp_path: Path) -> None:
+def test_cli_trains_refuses_to_overwrite_and_rejects_bad_options(tmp_path: Path, brl_in_process) -> None:
     import subprocess
     import sys
 
@@ -197,7 +197,7 @@ def test_cli_trains_refuses_to_overwrite_and_rejects_bad_options(tmp_path: Path)
     for bad in (args, ("train-rl", "--algo", "ppo", "--out", str(tmp_path / "x")),
                 ("train-rl", "--eval-every", "10", "--out", str(tmp_path / "x")),
                 ("train-rl", "--weather", "Blizzard", "--out", str(tmp_path / "x"))):
-        r = brl(*bad)
+        r = brl_in_process(*bad)
         assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr, r.stderr
     assert not (tmp_path / "x").exists()
 

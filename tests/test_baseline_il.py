@@ -134,7 +134,7 @@ def test_the_shipped_model_drives_a_short_route() -> None:
     assert result["km"] > 0.005  # it drives off
 
 
-def test_cli_trains_refuses_to_overwrite_and_benches_the_model(bags: Path, tmp_path: Path) -> None:
+def test_cli_trains_refuses_to_overwrite_and_benches_the_model(bags: Path, tmp_path: Path, brl_in_process) -> None:
     import subprocess
     import sys
 
@@ -146,7 +146,7 @@ def test_cli_trains_refuses_to_overwrite_and_benches_the_model(bags: Path, tmp_p
                "--out", str(out))
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().endswith("il.pt") and (out / "il.pt").is_file()
-    again = brl("train-il", "--data", str(bags), "--epochs", "1", "--out", str(out))
+    again = brl_in_process("train-il", "--data", str(bags), "--epochs", "1", "--out", str(out))
     assert again.returncode == 2 and "--resume" in again.stderr and "Traceback" not in again.stderr
     bench = brl("bench", "--agent", "il", "--model", str(out), "--episodes", "1", "--out", str(tmp_path / "b"))
     assert bench.returncode == 0, bench.stderr

@@ -4,6 +4,7 @@ import signal
 import subprocess
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -110,7 +111,7 @@ def _brl(*args: str) -> subprocess.CompletedProcess:
                           timeout=300)
 
 
-def test_bench_cli_runs_and_rejects_bad_input(tmp_path: Path, model: Path) -> None:
+def test_bench_cli_runs_and_rejects_bad_input(tmp_path: Path, model: Path, brl_in_process) -> None:
     r = _brl("--model", str(model), "--episodes", "2", "--out", str(tmp_path / "ok"))
     assert r.returncode == 0, r.stderr
     assert len(read_results(tmp_path / "ok")) == 2
@@ -137,9 +138,9 @@ def test_bench_cli_runs_and_rejects_bad_input(tmp_path: Path, model: Path) -> No
         ["--agent", "mp", "--deploy", "lidar"],
         ["--agent", "sac"],
     ]
-    for args in cases:
+    for i, args in enumerate(cases):
         out = [] if "--out" in args else ["--out", str(tmp_path / "bad")]
-        r = _brl(*args, *out)
+        r = (_brl if i == 0 else partial(brl_in_process, "bench"))(*args, *out)  # one in a process of its own
         assert r.returncode == 2, (args, r.stderr)
         assert r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr, (args, r.stderr)
     assert not (tmp_path / "bad").exists()

@@ -42,7 +42,7 @@ def _net_file(path: Path, size: tuple[int, int], offsets: list[float] | None) ->
     return path
 
 
-def test_eval_and_calibrate_write_the_state_error(bags: Path, tmp_path: Path) -> None:
+def test_eval_and_calibrate_write_the_state_error(bags: Path, tmp_path: Path, brl_in_process) -> None:
     raw = _net_file(tmp_path / "raw.pt", (32, 64), None)
     cal = tmp_path / "cal.pt"
     r = _brl("calibrate-seg", "--segnet", str(raw), "--data", str(bags), "--out", str(cal))
@@ -51,20 +51,20 @@ def test_eval_and_calibrate_write_the_state_error(bags: Path, tmp_path: Path) ->
     _, meta = load_segnet(cal)
     assert meta["logit_offsets"] is not None and meta["format_version"] == 2
     report = tmp_path / "eval.json"
-    r = _brl("eval-seg", "--segnet", str(cal), "--data", str(bags), "--out", str(report))
+    r = brl_in_process("eval-seg", "--segnet", str(cal), "--data", str(bags), "--out", str(report))
     assert r.returncode == 0, r.stderr
     doc = json.loads(report.read_text())
     figures = doc["results"]["sets"]["bags"]
     assert doc["results"]["calibration"] == "applied" and figures["frames"] == 16
     assert {"state_l1", "state_bias", "area_ratio", "iou_categories"} <= set(figures)
     assert "git_commit" in doc and doc["config"]["segnet"] == str(cal)
-    r = _brl("eval-seg", "--segnet", str(cal), "--data", str(bags), "--uncalibrated", "--out",
+    r = brl_in_process("eval-seg", "--segnet", str(cal), "--data", str(bags), "--uncalibrated", "--out",
              str(tmp_path / "raw.json"))
     before = json.loads((tmp_path / "raw.json").read_text())["results"]["sets"]["bags"]["state_l1"]
     assert r.returncode == 0 and figures["state_l1"] <= before + 1e-9
 
 
-def test_bad_segmentation_input_is_one_line_exit_2(bags: Path, tmp_path: Path) -> None:
+def test_bad_segmentation_input_is_one_line_exit_2(bags: Path, tmp_path: Path, brl_in_process) -> None:
     raw = _net_file(tmp_path / "raw.pt", (32, 64), None)
     wide = _net_file(tmp_path / "wide.pt", (88, 200), [0.0] * 13)
     (tmp_path / "junk.pt").write_bytes(b"junk")
@@ -82,8 +82,8 @@ def test_bad_segmentation_input_is_one_line_exit_2(bags: Path, tmp_path: Path) -
         ["train-seg", "--data", str(bags), "--select", "loss", "--out", str(tmp_path / "t")],
         ["bench", "--deploy", "estimated", "--segnet", str(raw), "--out", str(tmp_path / "b")],
     ]
-    for args in cases:
-        _one_line_error(_brl(*args))
+    for i, args in enumerate(cases):
+        _one_line_error((_brl if i == 0 else brl_in_process)(*args))  # one in a process of its own
     assert not (tmp_path / "t").exists() and not (tmp_path / "b").exists()
 
 

@@ -174,12 +174,12 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "brlcli.cli", *args], capture_output=True, text=True, timeout=300)
 
 
-def test_bench_refuses_a_navigation_model_on_a_suite_without_commands(tmp_path: Path) -> None:
+def test_bench_refuses_a_navigation_model_on_a_suite_without_commands(tmp_path: Path, brl_in_process) -> None:
     r = _cli("train", "--task", "navigation", "--steps", "40", "--no-evaluate", "--out", str(tmp_path / "m"))
     assert r.returncode == 0, r.stderr
     model = tmp_path / "m" / "seed_0"
     for suite in ("paper", "validation"):
-        r = _cli("bench", "--suite", suite, "--model", str(model), "--out", str(tmp_path / suite))
+        r = brl_in_process("bench", "--suite", suite, "--model", str(model), "--out", str(tmp_path / suite))
         assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "navigation" in r.stderr, r.stderr
         assert not (tmp_path / suite).exists()
     r = _cli("bench", "--suite", "nav_validation", "--model", str(model), "--episodes", "2",

@@ -15,7 +15,6 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 # --------------------------------------------------------------------------------------------------------------
 # CoRL2017 infraction events
@@ -270,6 +269,8 @@ def beta_posterior(successes: int, failures: int) -> Any:
     """Posterior Beta(s + 0.5, f + 0.5) of a rate after s successes and f failures (a frozen scipy.stats.beta)."""
     if successes < 0 or failures < 0:
         raise ValueError(f"counts must be >= 0, got successes={successes}, failures={failures}")
+    from scipy import stats  # imported here: scipy.stats takes about a second to import, and only reports need it
+
     return stats.beta(successes + JEFFREYS_PRIOR, failures + JEFFREYS_PRIOR)
 
 
