@@ -1,0 +1,63 @@
+"""Copy the finished members of a committee training run into a shipped model directory.
+
+    python scripts/ship_members.py runs/s30/committee7 models/brl_nav
+
+For every `seed_<s>/member_<k>` of the run that holds a `summary.json` (a finished member), writes
+`<dest>/seed_<s>/member_<k>/` with its `config.json`, `summary.json` and `model.npz`, the model re-saved
+zip-compressed (the same arrays, about a third of the size; `np.load` reads both) and checked array for array.
+Members already shipped are left as they are. A later `brl train --task navigation --set committee=K --resume` on a
+copy of `<dest>` finishes the missing members and writes each seed's committee (`models/README.md`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def ship_member(src: Path, dst: Path) -> None:
+    """Copy one finished member run (config, summary, compressed model) into dst, atomically per file."""
+    dst.mkdir(parents=True, exist_ok=True)
+    with np.load(src / "model.npz", allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    fd, tmp = tempfile.mkstemp(dir=dst, suffix=".npz.tmp")
+    os.close(fd)
+    with open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+    with np.load(tmp, allow_pickle=False) as back:
+        if sorted(back.files) != sorted(arrays) or any(
+                back[k].dtype != v.dtype or back[k].tobytes() != v.tobytes() for k, v in arrays.items()):
+            os.unlink(tmp)
+            raise SystemExit(f"{src}: the compressed copy differs from the model")
+    os.replace(tmp, dst / "model.npz")
+    for name in ("config.json", "summary.json"):  # summary last: it marks the member as finished
+        shutil.copyfile(src / name, dst / f"{name}.tmp")
+        os.replace(dst / f"{name}.tmp", dst / name)
+
+
+def main() -> None:
+    """Ship every finished member of a committee run that is not shipped yet."""
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run", type=Path)
+    ap.add_argument("dest", type=Path)
+    args = ap.parse_args()
+    shipped = 0
+    for summary in sorted(args.run.glob("seed_*/member_*/summary.json")):
+        src = summary.parent
+        dst = args.dest / src.parent.name / src.name
+        if (dst / "summary.json").exists():
+            continue
+        ship_member(src, dst)
+        shipped += 1
+    total = len(list(args.dest.glob("seed_*/member_*/summary.json")))
+    print(f"shipped {shipped} members; {args.dest} holds {total}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
