@@ -273,3 +273,18 @@ def test_bench_stopped_by_sigterm_saves_its_episodes_and_prints_no_traceback(tmp
     done = read_results(out)
     assert 1 <= len(done) < 12
     assert all((out / r["frames_file"]).exists() for r in done)
+
+
+def test_a_set_of_committee_members_without_committees_says_how_to_assemble_them(tmp_path: Path) -> None:
+    from brlcli.bench.runner import find_models
+
+    for k in range(2):
+        member = tmp_path / "nav" / "seed_0" / f"member_{k}"
+        member.mkdir(parents=True)
+        (member / "model.npz").write_bytes(b"")
+    for model, models in ((None, [str(tmp_path / "nav")]), (str(tmp_path / "nav" / "seed_0"), None)):
+        with pytest.raises(BrlInputError, match=r"committee members but no committee model\.npz.*--resume"):
+            find_models(model, models)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BrlInputError, match=r"holds no model\.npz files"):
+        find_models(None, [str(tmp_path / "empty")])
