@@ -142,8 +142,12 @@ class StatePolicy:
         self.setting = setting
         self.act = act
         self.labeler = labeler
-        self.needs_rgb = labeler is not None  # ground-truth labels need no RGB image
         self.camera = None if camera == CameraConfig() else camera  # None: the bench's default camera
+
+    @property
+    def needs_rgb(self) -> bool:
+        """Whether decisions need the RGB image (only to estimate labels; ground-truth labels need none)."""
+        return self.labeler is not None
 
     def reset(self, spec: EpisodeSpec, world: Any) -> None:
         """Greedy state policy: nothing to reset."""

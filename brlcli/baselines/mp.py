@@ -294,7 +294,6 @@ class ModularPipelinePolicy:
 
     def __init__(self, name: str = "mp", deploy: str = "gt", segnet: str | None = None) -> None:
         self.labeler = labeler_for(deploy, segnet)
-        self.needs_rgb = self.labeler is not None  # ground-truth labels need no RGB image
         self.name = name
         self.deploy = deploy
         self.setting = "MP-DG" if deploy == "gt" else "MP-DE"
@@ -388,6 +387,11 @@ class ModularPipelinePolicy:
         d = np.hypot(ox[:, None] - path_car[None, :, 0], oy[:, None] - path_car[None, :, 1]).min(axis=1)
         inside = d < CORRIDOR_HALF_M
         return float(ox[inside].min()) if inside.any() else math.inf
+
+    @property
+    def needs_rgb(self) -> bool:
+        """Whether decisions need the RGB image (only to estimate labels; ground-truth labels need none)."""
+        return self.labeler is not None
 
     def decide(self, obs: Any) -> Control:
         """Control for one frame from the label image, the measured speed and the route command."""

@@ -225,6 +225,12 @@ COMMITTEE_MEMBER_GLOBS = ("member_*/model.npz", "*/member_*/model.npz")
 """Where a committee run (or a shipped set of its members, models/brl_nav) keeps its members' models."""
 
 
+def _members_without_committee(where: str) -> str:
+    """The error for a committee's members found where a committee model.npz was expected."""
+    return (f"{where} holds committee members but no committee model.npz: assemble it with `brl train --task "
+            "navigation --set committee=K --resume` on a copy (models/README.md)")
+
+
 def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, str]]:
     """(policy name, model path) pairs from --model FILE or --models DIR|GLOB (a model set such as seed_0..8); a file
     given twice is listed once."""
@@ -237,9 +243,7 @@ def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, 
             p = p / "model.npz"
         if not p.is_file():
             if any(p.parent.glob(COMMITTEE_MEMBER_GLOBS[0])):
-                raise BrlInputError(f"{p.parent} holds committee members but no committee model.npz: assemble it with "
-                                    "`brl train --task navigation --set committee=K --resume` on a copy "
-                                    "(models/README.md)")
+                raise BrlInputError(_members_without_committee(str(p.parent)))
             raise BrlInputError(f"model file {p} does not exist")
         found.append((p.parent.name or p.stem, str(p)))
     for item in models or []:
@@ -255,9 +259,7 @@ def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, 
                 paths.extend(sorted(hp.glob("*/model.npz")))
         if not paths:
             if any(Path(h).is_dir() and any(Path(h).glob(g)) for h in hits for g in COMMITTEE_MEMBER_GLOBS):
-                raise BrlInputError(f"--models '{item}' holds committee members but no committee model.npz: assemble "
-                                    "the committees with `brl train --task navigation --set committee=K --resume` on "
-                                    "a copy (models/README.md)")
+                raise BrlInputError(_members_without_committee(f"--models '{item}'"))
             raise BrlInputError(f"--models '{item}' holds no model.npz files")
         for p in paths:
             found.append((f"{p.parent.parent.name}/{p.parent.name}", str(p)))
