@@ -243,6 +243,32 @@ def test_nocrash_success_posteriors_and_outcomes(tmp_path: Path) -> None:
     assert "NoCrash benchmark" in (out / "report.md").read_text()
 
 
+def test_a_model_set_gets_a_mean_row_with_std_worst_and_best(tmp_path: Path) -> None:
+    def ep(policy: str, n: int, success: bool, suite: str = "corl2017", task: str = "one_curve") -> dict:
+        return {"suite": suite, "condition": "training", "task": task, "town": "town01", "weather": 1, "index": n,
+                "id": f"{suite}/town01/training/{task}/w01/{n:02d}", "policy": policy, "setting": "TGDG",
+                "seed": n, "success": success, "km": 0.5, "steps": 100, "collided": False, "crashed": False,
+                "either_steps": 0, "infractions": {"offroad": 0, "otherlane": 0, "collision_other": 0,
+                                                   "collision_vehicles": 0, "collision_pedestrians": 0}}
+
+    wins = {"nav/seed_0": [True, True, True, True], "nav/seed_1": [True, True, False, False],
+            "nav/seed_2": [True, False, False, False], "solo": [False, False, False, False]}
+    eps = [ep(p, n, w) for p, ws in wins.items() for n, w in enumerate(ws)]
+    out = _report_of(tmp_path, "corl2017", eps)
+    rows = {r["Agent"]: r for r in read_csv(out / "tables" / "corl_success.csv")
+            if r["Task"] == "One turn" and r["Source"] == "ours"}
+    label = "nav: mean of 3 models (TGDG)"
+    assert set(rows) == {"nav/seed_0 (TGDG)", "nav/seed_1 (TGDG)", "nav/seed_2 (TGDG)", "solo (TGDG)", label}
+    assert float(rows[label]["Training"]) == pytest.approx(100 * (1 + 0.5 + 0.25) / 3, abs=1e-3)
+    std = 100 * np.std([1, 0.5, 0.25], ddof=1)
+    assert f"| {label} | ours | 58.3 ± {std:.1f} [25.0, 100.0] |" in (out / "report.md").read_text()
+    (tmp_path / "nc").mkdir()
+    nocrash = _report_of(tmp_path / "nc", "nocrash", [{**e, "suite": "nocrash", "task": "empty"} for e in eps])
+    nc_rows = {r["Agent"]: r for r in read_csv(nocrash / "tables" / "nocrash_success.csv") if r["Traffic"] == "Empty"}
+    assert float(nc_rows[label]["Training"]) == pytest.approx(100 * 1.75 / 3, abs=1e-3)
+    assert [a for a in nc_rows if "mean of" in a] == [label]  # one set row, none for the lone policy
+
+
 # --------------------------------------------------------------------------------------------------------------
 # Merging, missing settings, determinism
 

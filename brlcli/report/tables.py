@@ -373,6 +373,31 @@ def corl_agents(episodes: Sequence[dict[str, Any]]) -> list[tuple[str, str]]:
     return sorted(pairs, key=lambda sp: (order.index(sp[0]), sp[1]))
 
 
+def model_set_ends(agents: Sequence[tuple[str, str]]) -> dict[tuple[str, str], list[str]]:
+    """Model sets among the agents: {(setting, last member's policy): member policies} for every group of two or
+    more policies named `<set>/<model>` (e.g. nav/seed_0 .. nav/seed_8) with the same setting."""
+    sets: dict[tuple[str, str], list[str]] = defaultdict(list)
+    for setting, policy in agents:
+        if "/" in policy:
+            sets[(setting, policy.split("/")[0])].append(policy)
+    return {(setting, members[-1]): members for (setting, _), members in sets.items() if len(members) > 1}
+
+
+def model_set_cell(rates: Sequence[float]) -> Cell:
+    """A model set's cell: mean ± sample std (ddof 1) [worst, best] of its models' success shares, in %."""
+    v = 100.0 * np.asarray(rates, dtype=float)
+    std = float(np.std(v, ddof=1)) if len(v) > 1 else 0.0
+    return Cell(f"{v.mean():.1f} ± {std:.1f} [{v.min():.1f}, {v.max():.1f}]", f"{v.mean():.4f}")
+
+
+def _model_set_label(policies: Sequence[str], setting: str) -> str:
+    return f"{policies[0].split('/')[0]}: mean of {len(policies)} models ({setting})"
+
+
+MODEL_SET_NOTE = ("Rows 'mean of N models': a model set (policies named set/model with one setting), the mean ± "
+                  "sample std over its models of their success in the cell, [worst, best] model.")
+
+
 def corl_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
     """% success per task x condition per agent (mean over weathers), with CARLA's Table 1 MP / IL / RL."""
     cond_keys = [c for c, _ in pub.CORL_CONDITIONS]
@@ -382,6 +407,7 @@ def corl_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
     for ep in episodes:
         groups[(str(ep["setting"]), str(ep["policy"]), str(ep["task"]), str(ep["condition"]))].append(ep)
     agents = corl_agents(episodes)
+    sets = model_set_ends(agents)
     empty = 0
     for task, task_title in pub.CORL_TASKS:
         t.group()
@@ -396,6 +422,15 @@ def corl_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
                     empty += 1
                     cells.append(EMPTY)
             t.add([Cell.of(task_title), Cell.of(_agent_label(policy, setting)), Cell.of("ours"), *cells])
+            if (setting, policy) in sets:
+                members = sets[(setting, policy)]
+                set_cells = []
+                for cond in cond_keys:
+                    rates = [success_rate_over_weathers(groups[(setting, m, task, cond)]) for m in members
+                             if groups.get((setting, m, task, cond))]
+                    set_cells.append(model_set_cell(rates) if rates else EMPTY)
+                t.add([Cell.of(task_title), Cell.of(_model_set_label(members, setting)), Cell.of("ours"),
+                       *set_cells])
         for agent in pub.CARLA_AGENTS:
             t.add([Cell.of(task_title), Cell.of(agent), Cell.of("published"),
                    *(count(pub.CARLA_SUCCESS_PCT[task][c][agent]) for c in cond_keys)])
@@ -407,6 +442,8 @@ def corl_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
         f"Rows marked published come from {pub.CARLA_TABLE1_SOURCE} (MP modular pipeline, IL imitation learning, RL "
         "reinforcement learning; 25 routes x every weather of the condition in CARLA 0.8).",
     ]
+    if sets:
+        t.notes.append(MODEL_SET_NOTE)
     if empty:
         t.notes.append(f"{DASH}: no episodes of ours in {empty} agent x task x condition cells (a subset of the suite "
                        "was run).")
@@ -537,6 +574,11 @@ def nocrash_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
     for ep in episodes:
         groups[(str(ep["setting"]), str(ep["policy"]), str(ep["task"]), str(ep["condition"]))].append(ep)
     agents = corl_agents(episodes)
+    sets = model_set_ends(agents)
+
+    def rate(eps: list[dict[str, Any]]) -> float:
+        return sum(bool(ep["success"]) for ep in eps) / len(eps)
+
     for task, task_title in NOCRASH_TASKS:
         t.group()
         for setting, policy in agents:
@@ -551,10 +593,20 @@ def nocrash_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
                 cells.append(Cell(f"{100.0 * ok / len(eps):.1f} [{100.0 * s['lo']:.1f}, {100.0 * s['hi']:.1f}] "
                                   f"(n={len(eps)})", f"{100.0 * ok / len(eps):.4f}"))
             t.add([Cell.of(task_title), Cell.of(_agent_label(policy, setting)), *cells])
+            if (setting, policy) in sets:
+                members = sets[(setting, policy)]
+                set_cells = []
+                for cond in cond_keys:
+                    rates = [rate(groups[(setting, m, task, cond)]) for m in members
+                             if groups.get((setting, m, task, cond))]
+                    set_cells.append(model_set_cell(rates) if rates else EMPTY)
+                t.add([Cell.of(task_title), Cell.of(_model_set_label(members, setting)), *set_cells])
     t.notes = ["% success: episodes that reached the goal within 2 m before the timeout (the route at 5 km/h + 20 s) "
                "without a collision, pooled over the weathers of the condition; a collision above CoRL2017's "
                "intensity threshold ends the episode as a failure. In brackets: the 95 % equal-tailed interval of "
                "the Beta posterior with the Jeffreys prior; n = episodes. " + DASH + ": not run."]
+    if sets:
+        t.notes.append(MODEL_SET_NOTE)
     return t
 
 
