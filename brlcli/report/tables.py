@@ -6,7 +6,7 @@ every output format is deterministic.
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -394,6 +394,22 @@ def _model_set_label(policies: Sequence[str], setting: str) -> str:
     return f"{policies[0].split('/')[0]}: mean of {len(policies)} models ({setting})"
 
 
+def pooled_success(episodes: Sequence[dict[str, Any]]) -> float:
+    """Share of the episodes that succeeded (pooled, whatever their weather)."""
+    return sum(bool(ep["success"]) for ep in episodes) / len(episodes)
+
+
+def _model_set_cells(groups: dict[tuple[str, str, str, str], list[dict[str, Any]]], setting: str,
+                     members: Sequence[str], task: str, cond_keys: Sequence[str],
+                     rate: Callable[[Sequence[dict[str, Any]]], float]) -> list[Cell]:
+    """A model set's cells, one per condition: its members' `rate` in the (task, condition) cell."""
+    cells = []
+    for cond in cond_keys:
+        rates = [rate(groups[(setting, m, task, cond)]) for m in members if groups.get((setting, m, task, cond))]
+        cells.append(model_set_cell(rates) if rates else EMPTY)
+    return cells
+
+
 MODEL_SET_NOTE = ("Rows 'mean of N models': a model set (policies named set/model with one setting), the mean ± "
                   "sample std over its models of their success in the cell, [worst, best] model.")
 
@@ -424,13 +440,8 @@ def corl_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
             t.add([Cell.of(task_title), Cell.of(_agent_label(policy, setting)), Cell.of("ours"), *cells])
             if (setting, policy) in sets:
                 members = sets[(setting, policy)]
-                set_cells = []
-                for cond in cond_keys:
-                    rates = [success_rate_over_weathers(groups[(setting, m, task, cond)]) for m in members
-                             if groups.get((setting, m, task, cond))]
-                    set_cells.append(model_set_cell(rates) if rates else EMPTY)
                 t.add([Cell.of(task_title), Cell.of(_model_set_label(members, setting)), Cell.of("ours"),
-                       *set_cells])
+                       *_model_set_cells(groups, setting, members, task, cond_keys, success_rate_over_weathers)])
         for agent in pub.CARLA_AGENTS:
             t.add([Cell.of(task_title), Cell.of(agent), Cell.of("published"),
                    *(count(pub.CARLA_SUCCESS_PCT[task][c][agent]) for c in cond_keys)])
@@ -575,10 +586,6 @@ def nocrash_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
         groups[(str(ep["setting"]), str(ep["policy"]), str(ep["task"]), str(ep["condition"]))].append(ep)
     agents = corl_agents(episodes)
     sets = model_set_ends(agents)
-
-    def rate(eps: list[dict[str, Any]]) -> float:
-        return sum(bool(ep["success"]) for ep in eps) / len(eps)
-
     for task, task_title in NOCRASH_TASKS:
         t.group()
         for setting, policy in agents:
@@ -595,12 +602,8 @@ def nocrash_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
             t.add([Cell.of(task_title), Cell.of(_agent_label(policy, setting)), *cells])
             if (setting, policy) in sets:
                 members = sets[(setting, policy)]
-                set_cells = []
-                for cond in cond_keys:
-                    rates = [rate(groups[(setting, m, task, cond)]) for m in members
-                             if groups.get((setting, m, task, cond))]
-                    set_cells.append(model_set_cell(rates) if rates else EMPTY)
-                t.add([Cell.of(task_title), Cell.of(_model_set_label(members, setting)), *set_cells])
+                t.add([Cell.of(task_title), Cell.of(_model_set_label(members, setting)),
+                       *_model_set_cells(groups, setting, members, task, cond_keys, pooled_success)])
     t.notes = ["% success: episodes that reached the goal within 2 m before the timeout (the route at 5 km/h + 20 s) "
                "without a collision, pooled over the weathers of the condition; a collision above CoRL2017's "
                "intensity threshold ends the episode as a failure. In brackets: the 95 % equal-tailed interval of "
