@@ -888,9 +888,11 @@ def train_rl(
     check_run_dir(cfg, out, resume)
     _check_out(out, "train-rl", resume)
     console = Console(stderr=True)
+    suite = cfg.evaluation_suite
     columns = (TextColumn(f"{algo}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("episodes {task.fields[eps]}  epsilon {task.fields[expl]:.2f}  "
-                          f"{cfg.evaluation_suite} success " "{task.fields[succ]}"), TimeElapsedColumn())
+                          + (f"{suite} success {{task.fields[succ]}}" if suite != "none" else "no evaluation")),
+               TimeElapsedColumn())
     with Progress(*columns, console=console) as bar:
         task = bar.add_task("", total=steps, eps=0, expl=1.0, succ="-")
 
@@ -908,7 +910,7 @@ def train_rl(
     s = result["summary"]
     line = f"{s['env_steps']} env steps, {s['episodes']} episodes, {s['steps_per_s']:.0f} steps/s"
     if s.get("final_eval"):
-        line += f", {s['final_eval'].get('eval_suite', 'paper')} success {s['final_eval']['success']:.0%}"
+        line += f", {suite} success {s['final_eval']['success']:.0%}"
     console.print(line)
     typer.echo(str(out / "drl.pt"))
 
