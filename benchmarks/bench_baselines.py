@@ -15,10 +15,11 @@ import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+from brlcli.bench.registry import baseline_specs, build_policy
 from brlcli.bench.runner import run_episode
 from brlcli.bench.suites import build_suite
 from brlcli.models import default_model_set
-from brlcli.policy import Observation, baseline_specs, build_policy
+from brlcli.policy import Observation
 from brlcli.sim.vehicle import Control
 from brlcli.sim.world import World
 

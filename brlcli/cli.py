@@ -460,10 +460,11 @@ def bench(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    from brlcli.bench.runner import find_models, prepare, run_bench, suite_version, town_versions
+    from brlcli.bench.registry import baseline_specs, build_policy, check_suite_task, find_models
+    from brlcli.bench.runner import prepare, run_bench, suite_version, town_versions
     from brlcli.bench.suites import build_suite, parse_shard, subset
     from brlcli.bench.suites import shard as take_shard
-    from brlcli.policy import PolicySpec, baseline_specs, build_policy, check_suite_task, model_variant
+    from brlcli.policy import PolicySpec, model_variant
 
     ex = _executor(executor, workers, ray_address)
     k, n = parse_shard(shard)
@@ -861,6 +862,7 @@ def train_rl(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from brlcli.baselines.deeprl import DeepRLConfig, check_run_dir, train_deep_rl
+    from brlcli.bench.runner import suite_evaluator
     from brlcli.sim.town import load_town
     from brlcli.sim.weather import get_weather
     from brlcli.trainconfig import resolve_plain_config
@@ -903,7 +905,7 @@ def train_rl(
             bar.update(task, **fields)
 
         try:
-            result = train_deep_rl(cfg, out, resume=resume, progress=report)
+            result = train_deep_rl(cfg, out, resume=resume, progress=report, evaluator=suite_evaluator(suite))
         except KeyboardInterrupt:
             console.print(f"interrupted: finished chunks are checkpointed; continue with --resume --out {out}")
             raise typer.Exit(130) from None

@@ -1,9 +1,10 @@
-"""Learning curves: greedy success on the paper's test suite against environment steps (decisions).
+"""Learning curves: greedy success on an evaluation suite against environment steps (decisions), as a file.
 
 Both learners write the same `learning_curve.csv` beside their run: `brl train --curve-every N` (the Bayesian RL
 agent) and `brl train-rl` (the deep RL baseline), so `brl report` can plot their sample efficiency side by side.
 An environment step is one decision (the action held for 7 simulator frames), the unit of the paper's t_max.
-Evaluation is greedy, uses its own worlds and never touches the learner's random generators.
+The rows come from an `Evaluator` (`brlcli.bench.runner.SuiteEvaluator`): greedy, in its own worlds, never touching
+the learner's random generators.
 """
 
 from __future__ import annotations
@@ -11,46 +12,23 @@ from __future__ import annotations
 import csv
 import io
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
-from brlcli.bench.metrics import paper_score
-from brlcli.bench.runner import run_episode, world_for
-from brlcli.bench.suites import EpisodeSpec, build_suite
 from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_bytes
-from brlcli.sim.world import World
 
 CURVE_FILE = "learning_curve.csv"
 CURVE_COLUMNS = ("env_steps", "episodes", "success", "collision_free", "either", "score", "eval_suite")
 
 
-class SuiteEvaluator:
-    """Runs a policy on a suite's episodes (worlds kept between calls); returns the paper's table figures."""
-
-    def __init__(self, suite: str = "paper", bench_seed: int = 0) -> None:
-        self.suite = suite
-        self.specs: list[EpisodeSpec] = build_suite(suite)
-        self.bench_seed = bench_seed
-        self._worlds: dict[tuple, World] = {}
+class Evaluator(Protocol):
+    """What a learner evaluates its greedy policy with (a learning curve's rows)."""
 
     def evaluate(self, policy: Any) -> dict[str, Any]:
-        """Success, collision-free and Either shares and the Score over every episode of the suite."""
-        results = []
-        for spec in self.specs:
-            results.append(run_episode(world_for(self._worlds, spec, policy), spec, policy, self.bench_seed)[0])
-        n = len(results)
-        steps = sum(r["steps"] for r in results)
-        success = sum(r["success"] for r in results) / n
-        collision_free = sum(not r["collided"] for r in results) / n
-        either = sum(r["either_steps"] for r in results) / max(steps, 1)
-        return {"episodes": n, "success": success, "collision_free": collision_free, "either": either,
-                "score": paper_score(either, success, collision_free), "eval_suite": self.suite}
+        """Figures of one greedy evaluation (episodes, success, collision_free, either, score, eval_suite)."""
 
     def close(self) -> None:
-        """Release the worlds' physics clients."""
-        for w in self._worlds.values():
-            w.close()
-        self._worlds.clear()
+        """Release what the evaluator holds."""
 
 
 def write_curve(path: Path, rows: list[dict[str, Any]]) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from brlcli.sim.classes import CarlaClass
+from brlcli.classes import CarlaClass
 
 N_CATEGORIES = 5
 N_REGIONS = 6

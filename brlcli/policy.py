@@ -1,9 +1,11 @@
-"""The driving-policy interface, below both the bench and the baselines.
+"""The driving-policy interface, below both the bench and the baselines, and the policies of brl's own agents.
 
 A policy sees an `Observation` every `frames_per_decision` simulator frames and returns the `Control` to hold.
 Policies travel to worker processes (local or Ray) as a `PolicySpec` (kind, name, plain options) and are rebuilt
-there with `build_policy`, so a worker can build any policy without importing the bench runner; the baselines'
-modules are imported only when their kind is built.
+there by the policy registry (`brlcli.bench.registry.build_policy`), which sits above the baselines it builds.
+Here: the interface (`Observation`, `Policy`, `PolicySpec`), `StatePolicy` (any greedy function of the 30-number
+state), the trained BRL models (`BRLPolicy`), the privileged expert (`AutopilotPolicy`) and the expert restricted to
+the BRL agent's actions (`OraclePolicy`).
 """
 
 from __future__ import annotations
@@ -25,13 +27,8 @@ from brlcli.sim.gym_env import ACTIONS, FRAMES_PER_DECISION
 from brlcli.sim.vehicle import Control
 
 if TYPE_CHECKING:
-    from brlcli.bench.suites import EpisodeSpec
+    from brlcli.episode import EpisodeSpec
     from brlcli.sim.world import World
-
-AGENTS = ("brl", "autopilot", "oracle", "mp", "il", "dqn")
-"""The policy kinds. brl: Bayesian RL models; autopilot: privileged expert; oracle: the expert restricted to the BRL
-agent's action primitives and decision rate; mp: modular pipeline; il: conditional imitation learning; dqn: deep RL
-(Stable-Baselines3 DQN)."""
 
 PATH_OPTIONS = ("model", "segnet")
 """Options of a PolicySpec that name files (resolved to absolute paths before they travel to a worker)."""
@@ -69,10 +66,6 @@ class PolicySpec:
     name: str
     options: dict[str, Any] = field(default_factory=dict)
 
-    def build(self) -> Policy:
-        """Instantiate the policy."""
-        return build_policy(self.kind, self.name, self.options)
-
     def with_absolute_paths(self) -> PolicySpec:
         """The same spec with its file options absolute (a worker may run in another directory)."""
         opts = {k: (str(Path(v).resolve()) if k in PATH_OPTIONS and v is not None else v)
@@ -99,20 +92,9 @@ def model_training_input(model_path: Path) -> str:
     return str(_training_config(model_path).get("input", "gt"))
 
 
-COMMANDLESS_SUITES = ("paper", "validation")
-"""Bench suites whose routes hold no junction, so no route command: a navigation model is not benched on them."""
-
-
 def model_task(model_path: Path) -> str:
     """'lane-keeping' or 'navigation': the task of a BRL model (its config.json's `task`; lane keeping without)."""
     return str(_training_config(model_path).get("task", "lane-keeping"))
-
-
-def check_suite_task(suite: str, policy: Any) -> None:
-    """A one-line error when a policy cannot be benched on a suite (a navigation model on a suite without commands)."""
-    if getattr(policy, "task", "lane-keeping") == "navigation" and suite in COMMANDLESS_SUITES:
-        raise BrlInputError(f"{policy.name} was trained for navigation (route commands); the {suite} suite is "
-                            "lane keeping without commands: bench it on --suite corl2017, nocrash or nav_validation")
 
 
 def model_variant(model_path: Path) -> str:
@@ -275,41 +257,3 @@ class OraclePolicy(AutopilotPolicy):
         return self._primitives[int(np.argmin(np.abs(self._steers - expert.steer)))]
 
 
-def build_policy(kind: str, name: str, options: dict[str, Any]) -> Policy:
-    """A policy from its kind and options (a baseline's module is imported only when its kind is built)."""
-    if kind == "brl":
-        return BRLPolicy(name, **options)
-    if kind == "autopilot":
-        return AutopilotPolicy(name)
-    if kind == "oracle":
-        return OraclePolicy(name, **options)
-    if kind == "mp":
-        from brlcli.baselines.mp import ModularPipelinePolicy
-
-        return ModularPipelinePolicy(name, **options)
-    if kind == "il":
-        from brlcli.baselines.il import ILPolicy
-
-        return ILPolicy(name, **options)
-    if kind == "dqn":
-        from brlcli.baselines.deeprl import DeepRLPolicy
-
-        return DeepRLPolicy(name, **options)
-    raise BrlInputError(f"unknown agent '{kind}'; choose from {', '.join(AGENTS)}")
-
-
-def baseline_specs(agent: str, model: str | None, deploy: str, segnet: str | None) -> list[tuple[str, dict]]:
-    """(policy name, options) of a baseline agent: mp needs no model; il and dqn take --model or the shipped one."""
-    if agent in ("autopilot", "oracle", "mp") and model is not None:
-        raise BrlInputError(f"--agent {agent} has no trained model; drop --model")
-    if agent in ("autopilot", "oracle"):
-        return [(agent, {})]
-    if agent == "mp":
-        return [("mp", {"deploy": deploy, "segnet": segnet})]
-    if agent in ("il", "dqn"):
-        if model is None:
-            return [(agent, {"model": None, "deploy": deploy, "segnet": segnet})]
-        path = Path(model)
-        name = f"{agent}/{path.parent.name if path.is_file() else path.name}"
-        return [(name, {"model": str(path), "deploy": deploy, "segnet": segnet})]
-    raise BrlInputError(f"unknown agent '{agent}'; choose from {', '.join(AGENTS)}")

@@ -151,8 +151,9 @@ def train_task(variant: str, cfg_dict: dict[str, Any], run_dir: str, report: Cal
 def bench_config(cfg_dict: dict[str, Any], model: str, policy: str, routes: str, episodes: str | None,
                  bench_seed: int) -> tuple[list[Any], list[Any], dict[str, Any]]:
     """(episode specs, policy specs, bench.json config) of one model's evaluation, as `brl bench` makes them."""
-    from brlcli.bench.runner import PolicySpec, suite_version, town_versions
+    from brlcli.bench.runner import suite_version, town_versions
     from brlcli.bench.suites import build_suite, subset
+    from brlcli.policy import PolicySpec
 
     specs = subset(build_suite(routes), episodes)
     deploy = cfg_dict["input"]

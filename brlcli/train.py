@@ -373,7 +373,8 @@ class _Curve:
     """Greedy paper-suite evaluations during training (learning_curve.csv); rows past a resumed step are redone."""
 
     def __init__(self, run_dir: Path, cfg: TrainConfig, env: DrivingEnv, step: int) -> None:
-        from brlcli.curve import CURVE_FILE, SuiteEvaluator, read_curve
+        from brlcli.bench.runner import SuiteEvaluator
+        from brlcli.curve import CURVE_FILE, read_curve
 
         self.path = run_dir / CURVE_FILE
         self.rows = [r for r in read_curve(self.path) if r["env_steps"] <= step] if self.path.exists() else []
@@ -717,7 +718,7 @@ def _train_committee(cfg: TrainConfig, run_dir: Path, resume: bool,
 
 def evaluate_navigation(agent: Any, cfg: TrainConfig) -> dict[str, Any]:
     """Greedy success, collision-free and Either shares on the navigation validation suite (nav_validation)."""
-    from brlcli.curve import SuiteEvaluator
+    from brlcli.bench.runner import SuiteEvaluator
     from brlcli.settings import setting_name
 
     evaluator = SuiteEvaluator("nav_validation")

@@ -136,12 +136,12 @@ def test_bad_model_files_are_refused(tmp_path: Path, trained: Path) -> None:
 
 
 def test_learning_curve_written_during_training(tmp_path: Path, monkeypatch) -> None:
-    import brlcli.curve as curve
+    import brlcli.bench.runner as curve
 
     two = build_suite("paper", weathers="1")[:2]
     monkeypatch.setattr(curve, "build_suite", lambda suite: two)
     out = tmp_path / "c"
-    train_deep_rl(DeepRLConfig(**{**TINY, "eval_suite": "paper"}), out)
+    train_deep_rl(DeepRLConfig(**{**TINY, "eval_suite": "paper"}), out, evaluator=curve.SuiteEvaluator("paper"))
     rows = read_curve(out / CURVE_FILE)
     assert [r["env_steps"] for r in rows] == [120, 240]
     assert all(r["episodes"] == 2 and 0.0 <= r["success"] <= 1.0 for r in rows)
@@ -203,7 +203,7 @@ def test_cli_trains_refuses_to_overwrite_and_rejects_bad_options(tmp_path: Path,
 
 
 def test_navigation_dqn_sees_the_command_and_curves_on_nav_validation(tmp_path: Path, monkeypatch) -> None:
-    import brlcli.curve as curve
+    import brlcli.bench.runner as curve
 
     cfg = DeepRLConfig(**{**TINY, "task": "navigation", "eval_suite": "auto"})
     assert cfg.evaluation_suite == "nav_validation" and cfg.state_dim == 34
@@ -218,7 +218,7 @@ def test_navigation_dqn_sees_the_command_and_curves_on_nav_validation(tmp_path: 
         env.close()
     one = build_suite("nav_validation")[:1]
     monkeypatch.setattr(curve, "build_suite", lambda suite: one)
-    train_deep_rl(cfg, tmp_path / "nav")
+    train_deep_rl(cfg, tmp_path / "nav", evaluator=curve.SuiteEvaluator(cfg.evaluation_suite))
     rows = read_curve(tmp_path / "nav" / CURVE_FILE)
     assert [r["eval_suite"] for r in rows] == ["nav_validation", "nav_validation"]
     net, meta = load_model(tmp_path / "nav")

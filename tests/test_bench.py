@@ -239,7 +239,7 @@ def test_nocrash_collision_ends_the_episode_as_a_failure(tmp_path: Path) -> None
 
 
 def test_without_a_model_the_shipped_gt_set_is_used() -> None:
-    from brlcli.bench.runner import find_models
+    from brlcli.bench.registry import find_models
 
     found = find_models(None, None)
     assert [name for name, _ in found] == [f"brl_gt/seed_{k}" for k in range(9)]
@@ -276,7 +276,7 @@ def test_bench_stopped_by_sigterm_saves_its_episodes_and_prints_no_traceback(tmp
 
 
 def test_a_set_of_committee_members_without_committees_says_how_to_assemble_them(tmp_path: Path) -> None:
-    from brlcli.bench.runner import find_models
+    from brlcli.bench.registry import find_models
 
     for k in range(2):
         member = tmp_path / "nav" / "seed_0" / f"member_{k}"

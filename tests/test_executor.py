@@ -185,7 +185,7 @@ def test_cli_bench_joins_a_running_cluster(tmp_path: Path, model: Path, ray_inst
 
 def test_policy_interface_sits_below_bench_and_baselines() -> None:
     code = ("import sys, brlcli.policy, brlcli.baselines.deeprl, brlcli.train\n"
-            "bad = [m for m in ('brlcli.bench.runner', 'brlcli.curve', 'ray') if m in sys.modules]\n"
+            "bad = [m for m in ('brlcli.bench.runner', 'brlcli.bench.registry', 'ray') if m in sys.modules]\n"
             "assert not bad, bad\n"
             "import brlcli.bench.runner, brlcli.cli\n"
             "assert 'ray' not in sys.modules\n")

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
+from brlcli.classes import CarlaClass
 from brlcli.features import STATE_DIM, region_index, road_share, state_vector
 from brlcli.reward import RewardParams, reward_terms
-from brlcli.sim.classes import CarlaClass
 
 
 def _naive_state(labels: np.ndarray) -> np.ndarray:

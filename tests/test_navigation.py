@@ -214,7 +214,7 @@ def test_a_command_change_bootstraps_from_the_next_branch(tmp_path: Path) -> Non
 
 
 def test_suite_task_check_applies_to_any_policy_with_a_task() -> None:
-    from brlcli.policy import check_suite_task
+    from brlcli.bench.registry import check_suite_task
 
     class NavPolicy:
         name = "dqn/nav"
@@ -247,7 +247,7 @@ def test_the_bench_replans_a_route_the_car_has_left_as_carlas_planner_does(net01
 
 def test_keep_best_ships_the_evaluation_with_the_best_validation_figures(tmp_path: Path,
                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
-    import brlcli.curve
+    import brlcli.bench.runner
 
     successes = iter([0.25, 0.5, 0.25])
 
@@ -262,7 +262,7 @@ def test_keep_best_ships_the_evaluation_with_the_best_validation_figures(tmp_pat
         def close(self) -> None:
             pass
 
-    monkeypatch.setattr(brlcli.curve, "SuiteEvaluator", FakeEvaluator)
+    monkeypatch.setattr(brlcli.bench.runner, "SuiteEvaluator", FakeEvaluator)
     cfg = TrainConfig(task="navigation", steps=60, seed=1, curve_every=20, keep_best=True)
     summary = train_run(cfg, tmp_path / "run")["summary"]
     run = tmp_path / "run"

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from brlcli.classes import CarlaClass
 from brlcli.errors import BrlInputError
 from brlcli.features import road_share, state_vector
 from brlcli.policy import model_camera
 from brlcli.reward import RewardParams, reward_terms
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.classes import CarlaClass
 from brlcli.sim.gym_env import DrivingEnv
 from brlcli.train import TrainConfig
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from brlcli.classes import CarlaClass
 from brlcli.sim import Command, RoadNetwork, load_town
-from brlcli.sim.classes import CarlaClass
 from brlcli.sim.townmap import LANE_ANGLE_STEPS, LANE_NONE, TownMap
 from brlcli.sim.traffic import Traffic
 from brlcli.sim.vehicle import LENGTH_M

@@ -147,7 +147,7 @@ def test_estimated_input_trains_on_the_shipped_segmentation_net(tmp_path: Path) 
 
 
 def test_learning_curve_evaluations_do_not_change_training(tmp_path: Path, monkeypatch) -> None:
-    import brlcli.curve as curve
+    import brlcli.bench.runner as curve
     from brlcli.bench.suites import build_suite
     from brlcli.curve import read_curve
 

@@ -3,7 +3,7 @@
 Training runs in chunks of `eval_every` environment steps. Each chunk starts from a fresh environment reset and
 seeds every generator (python, numpy, torch, action space, env) from (seed, chunk), so a run resumed from the
 checkpoint of its last finished chunk is bit-identical to an uninterrupted one. After each chunk the greedy
-Q-network is evaluated on the paper's test suite and a row is added to `learning_curve.csv` (see brlcli.curve).
+Q-network is evaluated on the evaluation suite and a row is added to `learning_curve.csv` (see brlcli.curve).
 
 Run directory:
     config.json          resolved configuration + brl version + git commit
@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from brlcli.curve import CURVE_FILE, Evaluator, write_curve
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM
 from brlcli.policy import StatePolicy, setting_name
@@ -357,11 +358,15 @@ def check_run_dir(cfg: DeepRLConfig, run_dir: Path, resume: bool) -> None:
 
 
 def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
-                  progress: Callable[[DeepRLProgress], None] | None = None) -> dict[str, Any]:
-    """Train the deep RL baseline for `cfg.steps` env steps, evaluating every `cfg.eval_every`; resumable."""
+                  progress: Callable[[DeepRLProgress], None] | None = None,
+                  evaluator: Evaluator | None = None) -> dict[str, Any]:
+    """Train the deep RL baseline for `cfg.steps` env steps, evaluating with `evaluator` (on
+    `cfg.evaluation_suite`, e.g. `brlcli.bench.runner.suite_evaluator`) every `cfg.eval_every`; resumable. The
+    evaluator is closed at the end."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from brlcli.curve import CURVE_FILE, SuiteEvaluator, write_curve
+    if (evaluator is None) != (cfg.evaluation_suite == "none"):
+        raise ValueError(f"evaluation suite {cfg.evaluation_suite} needs an evaluator (and 'none' none)")
 
     run_dir = Path(run_dir)
     config_path = run_dir / "config.json"
@@ -379,7 +384,6 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
     wall0 = state["wall_s"] if state else 0.0
     eval_s = state["eval_s"] if state else 0.0
     t0 = time.perf_counter()
-    evaluator = SuiteEvaluator(cfg.evaluation_suite) if cfg.evaluation_suite != "none" else None
     setting = f"{cfg.algo.upper()}-{setting_name(cfg.input, cfg.input)}"
     n_chunks = -(-cfg.steps // cfg.eval_every)
 

@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from brlcli.bench.suites import EpisodeSpec
+from brlcli.classes import CarlaClass
+from brlcli.episode import EpisodeSpec
 from brlcli.segnet import labeler_for
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.classes import CarlaClass
 from brlcli.sim.roadnet import Command
 from brlcli.sim.vehicle import MAX_STEER_DEG, STEER_TAU_S, WHEELBASE_M, Control
 from brlcli.sim.world import FRAME_DT_S

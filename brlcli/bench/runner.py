@@ -20,8 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from brlcli.bench.metrics import FOOTPRINT_THRESHOLD, INFRACTION_RULES, episode_infractions, km_driven
-from brlcli.bench.suites import GOAL_DISTANCE_M, SUITE_VERSION, EpisodeSpec
+from brlcli.bench.metrics import FOOTPRINT_THRESHOLD, INFRACTION_RULES, episode_infractions, km_driven, paper_score
+from brlcli.bench.registry import build_spec
+from brlcli.bench.suites import GOAL_DISTANCE_M, SUITE_VERSION, build_suite
+from brlcli.episode import EpisodeSpec
 from brlcli.errors import BrlInputError
 from brlcli.executor import Executor, run_tasks
 from brlcli.npzio import npz_bytes
@@ -127,7 +129,7 @@ class _Worker:
         p_idx, spec_dict = item
         spec = EpisodeSpec(**{**spec_dict, "start": tuple(spec_dict["start"]), "goal": tuple(spec_dict["goal"])})
         if p_idx not in self.policies:
-            self.policies[p_idx] = self.policy_specs[p_idx].build()
+            self.policies[p_idx] = build_spec(self.policy_specs[p_idx])
         policy = self.policies[p_idx]
         result, log = run_episode(world_for(self.worlds, spec, policy), spec, policy, self.seed)
         result["frames_file"] = f"frames/{_safe(result['policy'])}/{_safe(spec.id)}.npz"
@@ -220,61 +222,35 @@ def suite_version(suite: str) -> int:
     return SUITE_VERSION[suite]
 
 
+class SuiteEvaluator:
+    """Runs a policy on a suite's episodes (worlds kept between calls); returns the paper's table figures."""
 
-COMMITTEE_MEMBER_GLOBS = ("member_*/model.npz", "*/member_*/model.npz")
-"""Where a committee run (or a shipped set of its members, models/brl_nav) keeps its members' models."""
+    def __init__(self, suite: str = "paper", bench_seed: int = 0) -> None:
+        self.suite = suite
+        self.specs: list[EpisodeSpec] = build_suite(suite)
+        self.bench_seed = bench_seed
+        self._worlds: dict[tuple, World] = {}
+
+    def evaluate(self, policy: Any) -> dict[str, Any]:
+        """Success, collision-free and Either shares and the Score over every episode of the suite."""
+        results = []
+        for spec in self.specs:
+            results.append(run_episode(world_for(self._worlds, spec, policy), spec, policy, self.bench_seed)[0])
+        n = len(results)
+        steps = sum(r["steps"] for r in results)
+        success = sum(r["success"] for r in results) / n
+        collision_free = sum(not r["collided"] for r in results) / n
+        either = sum(r["either_steps"] for r in results) / max(steps, 1)
+        return {"episodes": n, "success": success, "collision_free": collision_free, "either": either,
+                "score": paper_score(either, success, collision_free), "eval_suite": self.suite}
+
+    def close(self) -> None:
+        """Release the worlds' physics clients."""
+        for w in self._worlds.values():
+            w.close()
+        self._worlds.clear()
 
 
-def _members_without_committee(where: str) -> str:
-    """The error for a committee's members found where a committee model.npz was expected."""
-    return (f"{where} holds committee members but no committee model.npz: assemble it with `brl train --task "
-            "navigation --set committee=K --resume` on a copy (models/README.md)")
-
-
-def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, str]]:
-    """(policy name, model path) pairs from --model FILE or --models DIR|GLOB (a model set such as seed_0..8); a file
-    given twice is listed once."""
-    import glob as globmod
-
-    found: list[tuple[str, str]] = []
-    if model:
-        p = Path(model)
-        if p.is_dir():
-            p = p / "model.npz"
-        if not p.is_file():
-            if any(p.parent.glob(COMMITTEE_MEMBER_GLOBS[0])):
-                raise BrlInputError(_members_without_committee(str(p.parent)))
-            raise BrlInputError(f"model file {p} does not exist")
-        found.append((p.parent.name or p.stem, str(p)))
-    for item in models or []:
-        hits = sorted(globmod.glob(item)) if any(ch in item for ch in "*?[") else [item]
-        paths: list[Path] = []
-        for h in hits:
-            hp = Path(h)
-            if hp.is_file():
-                paths.append(hp)
-            elif (hp / "model.npz").is_file():
-                paths.append(hp / "model.npz")
-            elif hp.is_dir():
-                paths.extend(sorted(hp.glob("*/model.npz")))
-        if not paths:
-            if any(Path(h).is_dir() and any(Path(h).glob(g)) for h in hits for g in COMMITTEE_MEMBER_GLOBS):
-                raise BrlInputError(_members_without_committee(f"--models '{item}'"))
-            raise BrlInputError(f"--models '{item}' holds no model.npz files")
-        for p in paths:
-            found.append((f"{p.parent.parent.name}/{p.parent.name}", str(p)))
-    if not found:
-        from brlcli.models import default_model_set
-
-        default = default_model_set()
-        if default is None:
-            raise BrlInputError("give a policy: --model FILE or --models DIR")
-        return find_models(None, [str(default)])
-    unique: dict[Path, tuple[str, str]] = {}
-    for name, path in found:  # a model named twice (--model X and a --models set holding X) runs once
-        unique.setdefault(Path(path).resolve(), (name, path))
-    found = list(unique.values())
-    names = [n for n, _ in found]
-    if len(set(names)) != len(names):
-        raise BrlInputError("two models have the same name; give them distinct directories")
-    return found
+def suite_evaluator(suite: str) -> SuiteEvaluator | None:
+    """A learning curve's evaluator on `suite` (None for "none": no evaluation)."""
+    return None if suite == "none" else SuiteEvaluator(suite)

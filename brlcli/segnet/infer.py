@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import io
 import warnings
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -125,11 +124,6 @@ def load_segmenter(path: str | Path | None = None, backend: str = "onnxruntime")
     if key not in _CACHE:
         _CACHE[key] = Segmenter(p, backend=backend)
     return _CACHE[key]
-
-
-def load_labeler(path: str | Path | None = None) -> Callable[[np.ndarray], np.ndarray]:
-    """A function RGB -> estimated labels using the given (or the shipped) segmentation net."""
-    return load_segmenter(path).predict
 
 
 def uncalibrated_notice(path: str | Path | None = None) -> str | None:

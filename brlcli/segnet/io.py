@@ -8,15 +8,14 @@ still load, as uncalibrated nets.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from brlcli.classes import CarlaClass
 from brlcli.errors import BrlInputError
 from brlcli.segnet.model import NUM_CLASSES, SegNet, SegNetConfig
-from brlcli.sim.classes import CarlaClass
 from brlcli.torchfiles import load_torch_doc, save_torch_doc
 
 SEGNET_FORMAT = "brl-segnet"
@@ -73,9 +72,3 @@ def load_segnet(path: Path, deployable: bool = True) -> tuple[SegNet, dict[str, 
     extra["format_version"] = doc["format_version"]
     extra["logit_offsets"] = logit_offsets(doc, path, deployable)
     return net.eval(), extra
-
-
-def calibration_record(meta: dict[str, Any]) -> dict[str, Any] | None:
-    """The calibration's provenance stored beside the offsets (what it was fitted on, figures before/after)."""
-    raw = meta.get("calibration")
-    return json.loads(raw) if isinstance(raw, str) else None

@@ -1,7 +1,7 @@
 """brl's simulator: CARLA-like towns on pybullet with a forward camera, labels, measurements, weather, traffic."""
 
+from brlcli.classes import CarlaClass, colorize_labels
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.classes import CarlaClass, colorize_labels
 from brlcli.sim.roadnet import Command, RoadNetwork, Route
 from brlcli.sim.town import Town, available_towns, load_town
 from brlcli.sim.vehicle import Control

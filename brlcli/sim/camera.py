@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from brlcli.sim.classes import CarlaClass
+from brlcli.classes import CarlaClass
 from brlcli.sim.townmap import (
     CURB,
     GROUND_CLASS,

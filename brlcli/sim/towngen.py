@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from brlcli.sim.classes import CarlaClass
+from brlcli.classes import CarlaClass
 from brlcli.sim.roadnet import PathSegment, RoadNetwork
 from brlcli.sim.town import OBJECT_COLUMNS, TOWN_FORMAT, TOWN_FORMAT_VERSION, Town, TownGeometry
 from brlcli.sim.townmap import RESOLUTION_M, TERRAIN, TownMap

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from brlcli.sim.classes import CarlaClass
+from brlcli.classes import CarlaClass
 from brlcli.sim.roadnet import RoadNetwork, offset_polyline
 
 RESOLUTION_M = 0.1

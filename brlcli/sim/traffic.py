@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from brlcli.sim.classes import CarlaClass
+from brlcli.classes import CarlaClass
 from brlcli.sim.roadnet import RoadNetwork, offset_polyline
 from brlcli.sim.vehicle import HEIGHT_M, LENGTH_M, WIDTH_M
 

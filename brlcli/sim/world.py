@@ -7,11 +7,11 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from brlcli.classes import CarlaClass
 from brlcli.errors import BrlInputError
 from brlcli.sim._bullet import connect_direct, quiet_console
 from brlcli.sim._bullet import pybullet as pb
 from brlcli.sim.camera import CameraConfig, Renderer
-from brlcli.sim.classes import CarlaClass
 from brlcli.sim.roadnet import RoadNetwork
 from brlcli.sim.town import Town, load_town
 from brlcli.sim.townmap import TownMap

@@ -7,8 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from brlcli.classes import colorize_labels
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
-from brlcli.sim.classes import colorize_labels
 from brlcli.sim.roadnet import Route
 from brlcli.sim.weather import get_weather
 from brlcli.sim.world import World

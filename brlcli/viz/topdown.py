@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from brlcli.sim.classes import LABEL_PALETTE
+from brlcli.classes import LABEL_PALETTE
 from brlcli.sim.roadnet import RoadNetwork
 from brlcli.sim.townmap import GROUND_CLASS, TownMap
 
