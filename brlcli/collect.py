@@ -15,6 +15,7 @@ import numpy as np
 from brlcli.autopilot import Autopilot, ExcursionConfig, NoiseConfig
 from brlcli.bags import EpisodeBagWriter
 from brlcli.errors import BrlInputError
+from brlcli.outdir import refuse_existing
 from brlcli.provenance import atomic_write_json, provenance
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.weather import get_weather
@@ -42,6 +43,8 @@ class CollectConfig:
     def __post_init__(self) -> None:
         if self.episodes < 1 or self.episode_frames < 1 or self.every < 1:
             raise BrlInputError("--episodes, --episode-frames and --every must be at least 1")
+        if self.seed < 0:
+            raise BrlInputError(f"--seed must be >= 0, got {self.seed}")
         if self.storage not in ("mcap", "sqlite3"):
             raise BrlInputError(f"--storage must be mcap or sqlite3, not '{self.storage}'")
         if not self.weathers:
@@ -53,6 +56,32 @@ class CollectConfig:
         if self.excursions and self.vehicles:
             raise BrlInputError("--excursions drive into the opposite lane, where oncoming traffic blocks the car; "
                                 "record excursions without --traffic")
+
+    @classmethod
+    def from_options(cls, town: str, weathers: str, episodes: int | None, frames: int | None, episode_frames: int,
+                     every: int, seed: int, storage: str, traffic: bool, noise: bool, excursions: float, depth: bool,
+                     width: int, height: int) -> CollectConfig:
+        """The recording `brl collect`'s options describe: comma-separated weathers, --episodes or --frames (in
+        whole episodes), CoRL2017's traffic with `traffic`, the camera's size; one-line errors."""
+        from brlcli.sim.town import load_town
+        from brlcli.sim.traffic import CORL_TRAFFIC
+
+        name = load_town(town).name
+        weather_ids = tuple(get_weather(w.strip()).id for w in weathers.split(",") if w.strip())
+        if episodes is not None and frames is not None:
+            raise BrlInputError("give --episodes or --frames, not both")
+        if frames is not None:
+            if frames < 1 or episode_frames < 1:
+                raise BrlInputError("--frames and --episode-frames must be at least 1")
+            episodes = math.ceil(frames / episode_frames)
+        try:
+            camera = asdict(CameraConfig(width=width, height=height))
+        except ValueError as exc:
+            raise BrlInputError(str(exc)) from None
+        vehicles, pedestrians = CORL_TRAFFIC.get(name, (15, 50)) if traffic else (0, 0)
+        return cls(town=town, weathers=weather_ids, episodes=10 if episodes is None else episodes,
+                   episode_frames=episode_frames, every=every, seed=seed, storage=storage, vehicles=vehicles,
+                   pedestrians=pedestrians, noise=noise, excursions=excursions, depth=depth, camera=camera)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
@@ -72,11 +101,7 @@ def check_output(cfg: CollectConfig, out: Path, resume: bool) -> None:
     """Refuse to mix recordings: an existing `out` needs `resume` and the same options."""
     cfg_path = Path(out) / "collect.json"
     if cfg_path.exists():
-        saved = json.loads(cfg_path.read_text())["config"]
-        if not resume:
-            raise BrlInputError(f"{out} already holds a recording; pass --resume or choose another --out")
-        if saved != cfg.to_dict():
-            raise BrlInputError(f"{out} holds a recording with other options; resume it with the same options")
+        refuse_existing(out, "a recording", resume, json.loads(cfg_path.read_text())["config"] == cfg.to_dict())
 
 
 def collect(cfg: CollectConfig, out: Path, resume: bool = False,

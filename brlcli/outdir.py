@@ -131,3 +131,13 @@ def check_out_dir(out: Path, kind: str, resume: bool = False, overwrite: bool = 
     if resume and not found and out.is_dir() and any(out.iterdir()) and not overwrite:
         raise BrlInputError(f"--out {out} holds no {KIND_NAMES.get(kind, kind)} to resume; choose another --out")
     _probe_writable(out)
+
+
+def refuse_existing(directory: Path, what: str, resume: bool, same: bool | None = None) -> None:
+    """The refusals of a directory that already holds a run (`what`: "a training run", "bench results", ...):
+    without `resume`, and, when resuming, one made with another configuration (`same` False; None: not known yet)."""
+    if not resume:
+        raise BrlInputError(f"{directory} already holds {what}; pass --resume or choose another --out")
+    if same is False:
+        raise BrlInputError(f"{directory} holds {what} made with another configuration; resume it with the same "
+                            "options or choose another --out")

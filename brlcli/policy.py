@@ -20,6 +20,7 @@ import numpy as np
 
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM, state_vector
+from brlcli.retired import RETIRED_CONFIG, retired_message
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.settings import setting_name
 from brlcli.sim.camera import CameraConfig
@@ -153,8 +154,7 @@ def greedy_command_brl(agent: Any) -> Callable[[np.ndarray, int], int]:
     rng = np.random.default_rng(0)
 
     def act(state: np.ndarray, command: int) -> int:
-        agent.set_command(command)
-        return agent.act(np.asarray(state, dtype=np.float64), rng, greedy=True)
+        return agent.act(np.asarray(state, dtype=np.float64), command, rng, greedy=True)
 
     return act
 
@@ -174,10 +174,12 @@ class BRLPolicy(StatePolicy):
             raise BrlInputError(f"model {model} is {'' if command else 'not '}command-conditioned but its "
                                 f"config.json says task {self.task}")
         self.agent = load_navigation_agent(model) if command else BayesianAgent.load(model)
-        if self.agent.state_dim != STATE_DIM or not len(ACTIONS) - 1 <= self.agent.n_actions <= len(ACTIONS):
+        if self.agent.state_dim == STATE_DIM and self.agent.n_actions == len(ACTIONS) - 1:
+            raise BrlInputError(f"model {model} has no backward primitive: "
+                                f"{retired_message('no_backward', RETIRED_CONFIG['no_backward'])}")
+        if self.agent.state_dim != STATE_DIM or self.agent.n_actions != len(ACTIONS):
             raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and "
-                                f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)} "
-                                f"(or {len(ACTIONS) - 1} without backward)")
+                                f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)}")
         self.variant = model_variant(Path(model))
         label = self.variant if self.task == "lane-keeping" else f"{self.variant}, navigation"
         super().__init__(name, setting_name(model_training_input(Path(model)), deploy, label),

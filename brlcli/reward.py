@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from brlcli.features import ROAD_VIEW_CATEGORIES, road_share
@@ -62,32 +61,21 @@ class RouteRewardParams:
     v_t * dt the advance at the target speed, so driving along the route at the target speed costs nothing and
     standing still or driving away from it costs up to 2 r_progress. `wrong_turn`: -r_wrong_turn on the step the
     car gets farther than `wrong_turn_m` from the route (a wrong turn at a junction), which ends the episode.
-    `heading`: -r_heading * min(|heading error|, pi/2), the angle (rad) between the car's yaw and the route's
-    direction at its projection; `lateral`: -r_lateral * min(|offset|, wrong_turn_m), the distance (m) from the
-    route. Both are 0 by default; they give an immediate cost to a decision that turns away from the route where
-    the paper's lane terms say nothing (inside a junction there is no other lane to enter).
     """
 
     r_progress: float = 5.0
     r_wrong_turn: float = 40.0
     wrong_turn_m: float = 6.0
-    r_heading: float = 0.0
-    r_lateral: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (self.r_progress >= 0 and self.r_wrong_turn >= 0 and self.wrong_turn_m > 0 and self.r_heading >= 0
-                and self.r_lateral >= 0):
-            raise ValueError("r_progress, r_wrong_turn, r_heading and r_lateral must be >= 0 and wrong_turn_m > 0, "
-                             f"got {self.r_progress}, {self.r_wrong_turn}, {self.r_heading}, {self.r_lateral}, "
-                             f"{self.wrong_turn_m}")
+        if not (self.r_progress >= 0 and self.r_wrong_turn >= 0 and self.wrong_turn_m > 0):
+            raise ValueError("r_progress and r_wrong_turn must be >= 0 and wrong_turn_m > 0, got "
+                             f"{self.r_progress}, {self.r_wrong_turn}, {self.wrong_turn_m}")
 
 
-def route_terms(progress_m: float, expected_m: float, lateral_m: float, params: RouteRewardParams,
-                heading_error_rad: float = 0.0) -> dict[str, float]:
-    """The route-following terms of one decision: progress (ds vs. the target speed's), the wrong-turn penalty, and
-    the heading and lateral costs (RouteRewardParams)."""
+def route_terms(progress_m: float, expected_m: float, lateral_m: float, params: RouteRewardParams) -> dict[str, float]:
+    """The route-following terms of one decision: progress (ds vs. the target speed's) and the wrong-turn penalty
+    (RouteRewardParams)."""
     shortfall = min(max(1.0 - progress_m / expected_m, 0.0), 2.0)
     wrong = abs(lateral_m) > params.wrong_turn_m
-    return {"progress": -params.r_progress * shortfall, "wrong_turn": -params.r_wrong_turn if wrong else 0.0,
-            "heading": -params.r_heading * min(abs(heading_error_rad), math.pi / 2),
-            "lateral": -params.r_lateral * min(abs(lateral_m), params.wrong_turn_m)}
+    return {"progress": -params.r_progress * shortfall, "wrong_turn": -params.r_wrong_turn if wrong else 0.0}

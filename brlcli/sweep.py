@@ -33,17 +33,20 @@ import json
 import math
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from brlcli import __version__
+from brlcli.config import Layer, merge_layer, read_config_file
 from brlcli.errors import BrlInputError
+from brlcli.outdir import refuse_existing
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, git_commit, provenance
-from brlcli.train import TrainConfig
-from brlcli.trainconfig import merge_layer, read_config_file, resolve_config
+from brlcli.retired import RETIRED_CONFIG, refuse_retired
+from brlcli.train import check_run_dir, run_dir_for
+from brlcli.trainconfig import OPEN, TrainConfig, resolve_train_config
 
 SWEEP_FILE = "sweep.json"
 ROUTE_SETS = ("validation", "paper")
@@ -62,7 +65,7 @@ sweep.md and sweep.json."""
 # The grid
 
 
-def resolve_variant(base: dict[str, Any], overrides: dict[str, Any]) -> TrainConfig:
+def resolve_variant(base: dict[str, Any], overrides: dict[str, Any], name: str = "") -> TrainConfig:
     """`base` then `overrides` merged onto the default training configuration, validated (one-line errors).
 
     A grid that names no method variant (`variant = ...`) gets the paper's, whatever `brl train`'s default is, so
@@ -72,11 +75,9 @@ def resolve_variant(base: dict[str, Any], overrides: dict[str, Any]) -> TrainCon
         for key, why in RESERVED_KEYS.items():
             if key in layer:
                 raise BrlInputError(f"training config key '{key}' cannot be set in a sweep ({why})")
-    cfg = resolve_config([base, overrides], default_variant="paper")
-    from brlcli.sim.town import load_town
-
-    load_town(cfg.town)
-    return TrainConfig.from_dict({**cfg.to_dict(), "evaluate": False})
+    cfg = resolve_train_config([Layer("[base]", base), Layer(f"[variants.{name}]", overrides)],
+                               default_variant="paper")
+    return replace(cfg, evaluate=False)
 
 
 def read_grid_file(path: Path) -> dict[str, Any]:
@@ -84,8 +85,8 @@ def read_grid_file(path: Path) -> dict[str, Any]:
     return read_config_file(path, what="sweep grid")
 
 
-def load_grid(path: Path, only: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
-    """Variant name -> resolved training configuration (as a dict), every variant validated up front."""
+def load_grid(path: Path, only: Sequence[str] | None = None) -> dict[str, TrainConfig]:
+    """Variant name -> resolved training configuration, every variant validated up front."""
     doc = read_grid_file(path)
     extra = sorted(set(doc) - {"base", "variants"})
     if extra:
@@ -97,7 +98,8 @@ def load_grid(path: Path, only: Sequence[str] | None = None) -> dict[str, dict[s
     if not isinstance(variants, dict) or not variants:
         raise BrlInputError(f"sweep grid {path}: no variants (add tables [variants.NAME])")
     try:
-        merge_layer(TrainConfig().to_dict(), base, "", TrainConfig().to_dict())
+        refuse_retired(base, RETIRED_CONFIG)
+        merge_layer(TrainConfig().to_dict(), base, "", TrainConfig().to_dict(), open_tables=OPEN)
     except BrlInputError as exc:
         raise BrlInputError(f"sweep grid {path}: [base]: {exc}") from None
     names = list(variants)
@@ -106,7 +108,7 @@ def load_grid(path: Path, only: Sequence[str] | None = None) -> dict[str, dict[s
         if unknown:
             raise BrlInputError(f"sweep grid {path}: unknown variant '{unknown[0]}'; the grid has {', '.join(names)}")
         names = [v for v in names if v in set(only)]
-    resolved: dict[str, dict[str, Any]] = {}
+    resolved: dict[str, TrainConfig] = {}
     for name in names:
         overrides = variants[name]
         if not VARIANT_NAME.match(name):
@@ -114,19 +116,19 @@ def load_grid(path: Path, only: Sequence[str] | None = None) -> dict[str, dict[s
         if not isinstance(overrides, dict):
             raise BrlInputError(f"sweep grid {path}: variant '{name}' must be a table")
         try:
-            resolved[name] = resolve_variant(base, overrides).to_dict()
+            resolved[name] = resolve_variant(base, overrides, name)
         except BrlInputError as exc:
             raise BrlInputError(f"sweep grid {path}: variant '{name}': {exc}") from None
     return resolved
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Tasks (plain functions of plain dicts, for any executor)
+# Tasks (plain functions, for any executor)
 
 
-def run_dir_for(out: Path, variant: str, seed: int) -> Path:
-    """A run's directory in a sweep."""
-    return Path(out) / variant / f"seed_{seed}"
+def variant_dir(out: Path, variant: str) -> Path:
+    """A variant's model set in a sweep (seed_N/ runs, as `brl train --seeds` writes them)."""
+    return Path(out) / variant
 
 
 def eval_dir_for(run_dir: Path, routes: str) -> Path:
@@ -134,83 +136,50 @@ def eval_dir_for(run_dir: Path, routes: str) -> Path:
     return Path(run_dir) / f"eval_{routes}"
 
 
-def train_task(variant: str, cfg_dict: dict[str, Any], run_dir: str, report: Callable[[Any], None] | None = None
-               ) -> dict[str, Any]:
+def train_task(item: tuple[str, TrainConfig, str]) -> dict[str, Any]:
     """Train one (variant, seed) run, or return its summary when finished; resumes from its checkpoint."""
+    from brlcli.executor import report
     from brlcli.train import Progress, train_run
 
+    variant, cfg, run_dir = item
+
     def progress(p: Progress) -> None:
-        if report is not None:
-            report({"kind": "step", "variant": variant, "seed": p.seed, "step": p.step, "steps": p.steps,
-                    "components": p.components})
+        report({"kind": "step", "variant": variant, "seed": p.seed, "step": p.step, "steps": p.steps,
+                "components": p.components})
 
-    result = train_run(TrainConfig.from_dict(cfg_dict), Path(run_dir), resume=True, progress=progress)
-    return {"variant": variant, "seed": cfg_dict["seed"], **result["summary"]}
+    result = train_run(cfg, Path(run_dir), resume=True, progress=progress)
+    return {"variant": variant, "seed": cfg.seed, **result["summary"]}
 
 
-def bench_config(cfg_dict: dict[str, Any], model: str, policy: str, routes: str, episodes: str | None,
+def bench_config(cfg: TrainConfig, model: str, policy: str, routes: str, episodes: str | None,
                  bench_seed: int) -> tuple[list[Any], list[Any], dict[str, Any]]:
     """(episode specs, policy specs, bench.json config) of one model's evaluation, as `brl bench` makes them."""
-    from brlcli.bench.runner import suite_version, town_versions
+    from brlcli.bench.plan import bench_record
     from brlcli.bench.suites import build_suite, subset
     from brlcli.policy import PolicySpec
 
     specs = subset(build_suite(routes), episodes)
-    deploy = cfg_dict["input"]
-    pol = PolicySpec("brl", policy, {"model": model, "deploy": deploy, "segnet": cfg_dict.get("segnet")})
-    config = {"suite": routes, "suite_version": suite_version(routes), "town_versions": town_versions(specs),
-              "policies": [{"kind": pol.kind, "name": pol.name, **pol.options,
-                            "variant": cfg_dict.get("variant", "paper")}], "deploy": deploy,
-              "seed": bench_seed, "selection": {"conditions": None, "tasks": None, "weathers": None,
-                                                "episodes": episodes}, "shard": [1, 1]}
+    pol = PolicySpec("brl", policy, {"model": model, "deploy": cfg.input, "segnet": cfg.segnet})
+    selection = {"conditions": None, "tasks": None, "weathers": None, "episodes": episodes}
+    config = bench_record(routes, specs, [pol], cfg.input, bench_seed, selection, variants={policy: cfg.variant})
     return specs, [pol], config
 
 
-def eval_task(variant: str, cfg_dict: dict[str, Any], run_dir: str, routes: str = "validation",
-              episodes: str | None = None, bench_seed: int = 0, report: Callable[[Any], None] | None = None
-              ) -> dict[str, Any]:
+def eval_task(item: tuple[str, TrainConfig, str, str, str | None, int]) -> dict[str, Any]:
     """Evaluate one trained model greedily on a route set with the bench (finished episodes are kept)."""
     from brlcli.bench.runner import run_bench
+    from brlcli.executor import report
 
+    variant, cfg, run_dir, routes, episodes, bench_seed = item
     run = Path(run_dir)
-    model = str(run / "model.npz")
-    specs, pols, config = bench_config(cfg_dict, model, f"{variant}/seed_{cfg_dict['seed']}", routes, episodes,
+    specs, pols, config = bench_config(cfg, str(run / "model.npz"), f"{variant}/seed_{cfg.seed}", routes, episodes,
                                        bench_seed)
 
     def progress(result: dict) -> None:
-        if report is not None:
-            report({"kind": "episode", "variant": variant, "seed": cfg_dict["seed"], "success": result["success"]})
+        report({"kind": "episode", "variant": variant, "seed": cfg.seed, "success": result["success"]})
 
     results = run_bench(specs, pols, eval_dir_for(run, routes), config, workers=1, resume=True, progress=progress)
-    return {"variant": variant, "seed": cfg_dict["seed"], "episodes": len(results)}
-
-
-def run_tasks(fn: Callable[..., dict], tasks: Sequence[tuple[tuple, dict]], workers: int = 1,
-              progress: Callable[[Any], None] | None = None,
-              done: Callable[[dict[str, Any]], None] | None = None, executor: Any = None) -> list[dict[str, Any]]:
-    """Run `fn(*args, **kwargs, report=...)` for every task on `executor` (a `brlcli.executor.Executor`; default:
-    `workers` local processes); results in task order."""
-    from brlcli.executor import Executor
-    from brlcli.executor import run_tasks as execute
-
-    ex = executor if executor is not None else Executor("local", workers)
-    results: dict[int, dict[str, Any]] = {}
-    try:
-        for i, res in execute(_sweep_call, [(fn, pos, kw) for pos, kw in tasks], executor=ex, on_report=progress):
-            results[i] = res
-            if done:
-                done(res)
-    finally:
-        if executor is None:
-            ex.close()
-    return [results[i] for i in range(len(tasks))]
-
-
-def _sweep_call(item: tuple[Callable[..., dict], tuple, dict]) -> dict[str, Any]:
-    from brlcli.executor import report
-
-    fn, pos, kw = item
-    return fn(*pos, **kw, report=report)
+    return {"variant": variant, "seed": cfg.seed, "episodes": len(results)}
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -222,7 +191,7 @@ class SweepPlan:
     """What a sweep runs: resolved variants, seeds, the route set and its episode subset, the bench seed."""
 
     grid: str
-    variants: dict[str, dict[str, Any]]
+    variants: dict[str, TrainConfig]
     seeds: list[int]
     routes: str = "validation"
     episodes: str | None = None
@@ -230,12 +199,15 @@ class SweepPlan:
 
     def config(self) -> dict[str, Any]:
         """The resolved sweep configuration saved in sweep.json (resume must match it)."""
-        return {"grid": self.grid, "variants": self.variants, "seeds": list(self.seeds), "routes": self.routes,
-                "episodes": self.episodes, "bench_seed": self.bench_seed}
+        return {"grid": self.grid, "variants": {k: v.to_dict() for k, v in self.variants.items()},
+                "seeds": list(self.seeds), "routes": self.routes, "episodes": self.episodes,
+                "bench_seed": self.bench_seed}
 
-    def runs(self) -> list[tuple[str, int, dict[str, Any]]]:
-        """(variant, seed, training config dict) of every run, variants in grid order, seeds ascending."""
-        return [(v, s, {**cfg, "seed": s}) for v, cfg in self.variants.items() for s in self.seeds]
+    def runs(self) -> list[tuple[str, TrainConfig, Path]]:
+        """(variant, training config, run directory under a sweep's `out`, relative) of every run, variants in grid
+        order, seeds ascending."""
+        return [(v, cfg.for_seed(s), run_dir_for(Path(v), s)) for v, cfg in self.variants.items()
+                for s in self.seeds]
 
 
 def plan_sweep(grid: Path, seeds: list[int], routes: str = "validation", episodes: str | None = None,
@@ -250,32 +222,35 @@ def plan_sweep(grid: Path, seeds: list[int], routes: str = "validation", episode
     return SweepPlan(str(grid), resolved, sorted(seeds), routes, episodes, bench_seed)
 
 
+def _saved_plan_config(saved: dict[str, Any], where: str) -> dict[str, Any]:
+    """A saved sweep configuration with its variants read as this brl reads them (retired keys at their off values
+    dropped)."""
+    variants = {k: TrainConfig.from_saved(v, f"{where} (variant {k})").to_dict()
+                for k, v in saved.get("variants", {}).items()}
+    return {**{k: v for k, v in saved.items() if k != "grid"}, "variants": variants}
+
+
 def prepare_sweep(plan: SweepPlan, out: Path, resume: bool, write: bool = True) -> None:
     """Refuse an existing sweep without --resume or with another configuration; check every run; write sweep.json
     (unless `write` is false: a check only)."""
     out = Path(out)
     meta = out / SWEEP_FILE
     if meta.exists():
-        if not resume:
-            raise BrlInputError(f"{out} already holds a sweep; pass --resume or choose another --out")
-        saved = _read_sweep(out)["config"]
-        if {k: v for k, v in saved.items() if k != "grid"} != {k: v for k, v in plan.config().items() if k != "grid"}:
+        refuse_existing(out, "a sweep", resume)
+        saved = _saved_plan_config(_read_sweep(out)["config"], str(meta))
+        if saved != {k: v for k, v in plan.config().items() if k != "grid"}:
             raise BrlInputError(f"{out} holds a sweep of another grid, seeds, route set or episodes; resume it with "
                                 "the same ones or choose another --out")
     elif out.exists() and out.is_dir() and any(out.iterdir()):
         raise BrlInputError(f"{out} is not empty and holds no sweep (no {SWEEP_FILE}); choose another --out")
     elif out.exists() and not out.is_dir():
         raise BrlInputError(f"--out {out} is a file, not a directory")
-    for variant, seed, cfg in plan.runs():
-        cfg_path = run_dir_for(out, variant, seed) / "config.json"
-        if cfg_path.exists():
-            try:
-                saved_cfg = TrainConfig.from_dict(json.loads(cfg_path.read_text())["config"]).to_dict()
-            except (OSError, json.JSONDecodeError, KeyError, TypeError):
-                raise BrlInputError(f"{cfg_path} is not a brl training config") from None
-            if saved_cfg != TrainConfig.from_dict(cfg).to_dict():
-                raise BrlInputError(f"{cfg_path.parent} holds a run with another configuration than variant "
-                                    f"'{variant}'; choose another --out")
+    for variant, cfg, rel in plan.runs():
+        try:
+            check_run_dir(cfg, out / rel, resume=True)
+        except BrlInputError:
+            raise BrlInputError(f"{out / rel} holds a run with another configuration than variant '{variant}'; "
+                                "choose another --out") from None
     if write and not meta.exists():
         atomic_write_json(meta, provenance(plan.config(), kind="sweep"))
 
@@ -298,19 +273,23 @@ def run_sweep(plan: SweepPlan, out: Path, workers: int = 1, resume: bool = False
     `progress` receives plain dicts with 'kind', 'variant' and 'seed': 'step' (with step, steps, components) while
     training, 'episode' (with success) while evaluating, 'trained' and 'evaluated' when a run finishes a phase.
     """
+    from brlcli.executor import Executor, run_tasks
+
     out = Path(out)
     prepare_sweep(plan, out, resume)
     runs = plan.runs()
-    train_args = [((v, cfg, str(run_dir_for(out, v, s))), {}) for v, s, cfg in runs]
-
-    def finished(kind: str) -> Callable[[dict[str, Any]], None]:
-        return lambda r: progress({"kind": kind, "variant": r["variant"], "seed": r["seed"]}) if progress else None
-
-    run_tasks(train_task, train_args, workers, progress, finished("trained"), executor)
-    eval_args = [((v, cfg, str(run_dir_for(out, v, s))),
-                  {"routes": plan.routes, "episodes": plan.episodes, "bench_seed": plan.bench_seed})
-                 for v, s, cfg in runs]
-    run_tasks(eval_task, eval_args, workers, progress, finished("evaluated"), executor)
+    ex = executor if executor is not None else Executor("local", workers)
+    try:
+        phases = ((train_task, "trained", [(v, cfg, str(out / rel)) for v, cfg, rel in runs]),
+                  (eval_task, "evaluated", [(v, cfg, str(out / rel), plan.routes, plan.episodes, plan.bench_seed)
+                                            for v, cfg, rel in runs]))
+        for fn, kind, items in phases:
+            for _, result in run_tasks(fn, items, executor=ex, on_report=progress):
+                if progress:
+                    progress({"kind": kind, "variant": result["variant"], "seed": result["seed"]})
+    finally:
+        if executor is None:
+            ex.close()
     return write_tables(out)
 
 
@@ -331,8 +310,8 @@ class RunResult:
 
 def collect_runs(out: Path) -> tuple[dict[str, Any], list[RunResult], list[str]]:
     """(sweep.json record, finished runs, notes on unfinished ones) of a sweep directory."""
+    from brlcli.bench.metrics import model_stats
     from brlcli.bench.runner import read_results
-    from brlcli.report.tables import model_stats
 
     out = Path(out)
     doc = _read_sweep(out)
@@ -341,9 +320,8 @@ def collect_runs(out: Path) -> tuple[dict[str, Any], list[RunResult], list[str]]
 
     expected = len(subset(build_suite(cfg["routes"]), cfg.get("episodes")))
     runs, notes = [], []
-    for variant, seed, _ in SweepPlan(cfg.get("grid", ""), cfg["variants"], cfg["seeds"], cfg["routes"],
-                                      cfg.get("episodes"), cfg.get("bench_seed", 0)).runs():
-        run = run_dir_for(out, variant, seed)
+    for variant, seed in ((v, s) for v in cfg["variants"] for s in cfg["seeds"]):
+        run = run_dir_for(variant_dir(out, variant), seed)
         summary_path = run / "summary.json"
         episodes = read_results(eval_dir_for(run, cfg["routes"]))
         if not summary_path.exists() or len(episodes) < expected:

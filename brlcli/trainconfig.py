@@ -1,173 +1,259 @@
-"""Training configurations from layers: a named variant, a TOML file, `--set KEY=VALUE` overrides.
-
-A layer is a (flat or nested) table of overrides of `TrainConfig().to_dict()`; `brl sweep` grids, `brl train
---config FILE.toml` and `brl train --set` use the same schema and the same one-line errors. A layer may name a
-variant (`variant = "NAME"`): its preset (`VARIANT_PRESETS`) is applied first, then the layers in order.
+"""The training configuration of `brl train` and `brl sweep`: `TrainConfig`, the named methods and task presets, and
+its resolution from layers (`brlcli.config`): defaults -> method preset -> task preset -> `--config` -> options ->
+`--set`, validated once into a frozen `TrainConfig`.
 """
 
 from __future__ import annotations
 
 import json
-import tomllib
 from collections.abc import Sequence
-from pathlib import Path
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
+from brlcli.agent import BRLParams
+from brlcli.config import Layer, merge_layer, resolve
 from brlcli.errors import BrlInputError
-from brlcli.train import TASK_PRESETS, VARIANT_PRESETS, TrainConfig
+from brlcli.retired import RETIRED_CONFIG, RETIRED_PARAMS, drop_retired, refuse_retired
+from brlcli.reward import RewardParams, RouteRewardParams
+from brlcli.segnet import check_input_source
+from brlcli.sim.camera import CameraConfig
+from brlcli.sim.gym_env import DrivingEnv
+from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
+from brlcli.sim.weather import get_weather
 
-OPEN_TABLES = {"params"}
+VARIANT_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {},
+    "reference-code": {},
+    "averaging-restart": {"params": {"step_size": "visits"}, "restart_below": -7.0, "max_restarts": 2},
+    "action-averaging-restart": {"params": {"step_size": "action-visits"}, "restart_below": -7.0, "max_restarts": 2},
+}
+"""Named methods: the overrides of `TrainConfig()` each one stands for (a `--set` or `--config` goes on top).
+`paper`: eqs. 1-11, Algorithm 1 and Table I as written, with the lane-keeping study's open choices (the TrainConfig
+defaults). `reference-code`: the same set-up with the agent of the authors' code (`BRLParams.reference_code()`:
+gamma 0.8, rho_rate 3e-5, no alpha decay, Q normalised over actions, m_t by likelihood in the TD error).
+`averaging-restart` (outside the paper; docs/lane-keeping-study.md, rounds 8-10): the paper's, with a per-component
+step size in eq. 8 (Q[a, m] averages its TD targets: `params.step_size = "visits"`) and a restart of learning from a
+fresh agent when training is trapped (mean reward per step below -7 over the last 750 steps at step 1,500 or 3,000
+of an attempt; at most two restarts, none after step 4,500 of the run, so at most 9,000 learning steps).
+`action-averaging-restart` (outside the paper; rounds 11-12): `averaging-restart` with a per-action step size in eq. 8
+(each Q[a, m] averages its own TD targets: `params.step_size = "action-visits"`), which removes the chattering of
+equal action values that traps runs; the restart stays as a safety net (it fires on one of eighteen seeds)."""
+DEFAULT_VARIANT = "action-averaging-restart"
+"""The variant `brl train` uses when none is named: the recommended one, which beats `paper` on the validation routes
+by more than the standard error of the difference (docs/lane-keeping-study.md, round 11)."""
+
+TASK_PRESETS: dict[str, dict[str, Any]] = {
+    "lane-keeping": {},
+    "navigation": {"steps": 27000, "restart_below": None, "params": {"new_q": "nearest"},
+                   "branch_restart_below": [-5.0, -9.0, -9.0, -9.0]},
+}
+"""Overrides a task makes on top of the variant's preset (an option, --config or --set goes on top), chosen on the
+nav_validation suite (docs/navigation-study.md): navigation trains four branches, two thirds of the episodes at
+junctions, so six times the paper's t_max; without the trap restart, whose reward threshold is the lane-keeping
+task's; a new component starts from its nearest component's action values (`new_q = "nearest"`) rather than the
+optimistic constant, which otherwise makes an untried junction state look better than a known one; and a trap
+restart per branch (follow -5, turns -9), which restarts only a trapped branch."""
+
+DEFAULT_AGENT_OVERRIDES: dict[str, Any] = {"init_scatter": 1e-3}
+"""Agent parameters a training run sets beyond `BRLParams()` (none of them is in the paper's Table I): the NIW
+prior scatter S0 = 1e-3 I, on the scale of the 30-number state, instead of the reference code's 0.1 I
+(docs/lane-keeping-study.md)."""
+
+OPEN = ("params",)
 """Config tables whose keys are checked by their owner (params.*: BRLParams.from_dict), not against the defaults."""
+RESERVED_KEYS = {"seed": "seeds come from --seed or --seeds", "member": "committee members are numbered by brl train"}
+"""Training config keys an input layer may not set."""
 
 
-def merge_layer(base: dict[str, Any], over: dict[str, Any], where: str, defaults: dict[str, Any] | None,
-                what: str = "training") -> dict[str, Any]:
-    """`over` merged onto `base`: tables merge key by key into tables, anything else replaces; keys not in `defaults`
-    are an error naming the `what` config."""
-    out = dict(base)
-    for key, value in over.items():
-        name = f"{where}{key}"
-        if defaults is not None and key not in defaults:
-            hint = (" (a dot in a TOML table name nests tables: quote the variant name, [variants.\"a.b\"])"
-                    if where == "" and isinstance(value, dict) else "")
-            raise BrlInputError(f"unknown {what} config key '{name}'{hint}; known keys: "
-                                f"{', '.join(sorted(defaults))}")
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            default = defaults.get(key) if defaults is not None else None
-            open_table = not (isinstance(default, dict) and default) or name in OPEN_TABLES
-            sub_defaults = None if open_table else default  # keys of an open table are checked by its owner
-            out[key] = merge_layer(out[key], value, f"{name}.", sub_defaults, what)
-        else:
-            out[key] = value
-    return out
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that determines a training run (saved as `config.json`)."""
+
+    task: str = "lane-keeping"  # or "navigation" (TASKS)
+    town: str = "town01"
+    weather: int = 1
+    input: str = "gt"
+    steps: int = 4500
+    seed: int = 0
+    route_kinds: tuple[str, ...] | None = None  # the task's training routes (TASK_ROUTE_KINDS; None: all of them)
+    variant: str = "paper"
+    target_speed_kmh: float = 20.0
+    evaluate: bool = True
+    segnet: str | None = None  # the segmentation net for input "estimated" (None: the shipped one)
+    params: dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_AGENT_OVERRIDES))
+    curve_every: int = 0  # greedy evaluation on the task's evaluation suite every N steps (learning_curve.csv); 0: no
+    camera_pitch_deg: float = -15.0  # pitch of the state camera (deg, - = down); the authors' code uses -30
+    road_view: str = "road+line"  # the road-view reward counts "road" or "road+line" (authors' code) state entries
+    offroad_end: float | None = 0.5  # end a training episode when the off-road share of the footprint exceeds it
+    start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m ...
+    start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
+    otherlane_end: float | None = None  # end a training episode when the share in the opposite lane exceeds it
+    restart_below: float | None = None  # outside the paper: restart learning (a fresh agent) when the mean reward
+    # per step over the last RESTART_WINDOW of steps is below this at RESTART_CHECKS of an attempt (None: never)
+    max_restarts: int = 2  # at most this many restarts, and none that would take a run past 2 x steps; the last
+    # attempt always runs to the end
+    branch_restart_below: list[float] | None = None  # navigation only, outside the paper: per-branch trap test
+    # (follow, left, right, straight): at RESTART_CHECKS of the steps, a branch whose mean reward per step over its
+    # steps among the last RESTART_WINDOW of the run's steps is below its threshold restarts from a fresh agent
+    r_progress: float = 5.0  # navigation only: route-following reward terms (RouteRewardParams)
+    r_wrong_turn: float = 40.0
+    wrong_turn_m: float = 6.0
+    junction_weight: float = 2.0  # navigation only: a junction kind's probability relative to a lane-keeping kind
+    junction_approaches_m: list[float] = field(default_factory=lambda: [25.0, 60.0])  # navigation only: where the
+    # junction routes start before their junction (m)
+    committee: int = 1  # navigation only, outside the paper: K > 1 trains K command-conditioned agents apart (members
+    # 0..K-1, each the whole run's steps, in member_<k>/) and ships them as one model that acts by majority vote
+    member: int = 0  # which committee member a run is: member 0 is the seed's own run, member k > 0 draws its
+    # generators from (seed, k) as well
+
+    def __post_init__(self) -> None:
+        check_input_source(self.input, "--input")
+        if self.task not in TASKS:
+            raise BrlInputError(f"unknown task '{self.task}'; choose one of {', '.join(TASKS)}")
+        if self.variant not in VARIANT_PRESETS:
+            raise BrlInputError(f"unknown variant '{self.variant}'; choose one of {', '.join(VARIANT_PRESETS)}")
+        if self.branch_restart_below is not None and (self.task != "navigation" or len(self.branch_restart_below)
+                                                      != 4):
+            raise BrlInputError("branch_restart_below needs --task navigation and four thresholds (follow, left, "
+                                "right, straight)")
+        for name in ("committee", "member"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "committee" else 0):
+                raise BrlInputError(f"{name} must be an integer >= {1 if name == 'committee' else 0}, got {value!r}")
+        if self.committee > 1 and (self.task != "navigation" or self.curve_every or self.member):
+            raise BrlInputError("committee needs --task navigation and cannot be combined with --curve-every")
+        if not (self.junction_weight > 0 and self.junction_approaches_m
+                and all(isinstance(a, int | float) and a > 0 for a in self.junction_approaches_m)):
+            raise BrlInputError("junction_weight must be > 0 and junction_approaches_m a non-empty list of distances "
+                                "> 0 (m)")
+        if self.route_kinds is None:
+            object.__setattr__(self, "route_kinds", TASK_ROUTE_KINDS[self.task])
+        bad = [k for k in self.route_kinds if k not in TASK_ROUTE_KINDS[self.task]]
+        if bad or not self.route_kinds:
+            raise BrlInputError(f"route kinds {', '.join(bad) or '(none)'} are not {self.task} routes; choose from "
+                                f"{', '.join(TASK_ROUTE_KINDS[self.task])}")
+        if self.steps < 1:
+            raise BrlInputError("--steps must be at least 1")
+        if self.seed < 0:
+            raise BrlInputError(f"--seed must be >= 0, got {self.seed}")
+        if self.curve_every < 0:
+            raise BrlInputError("--curve-every must be >= 0")
+        if self.max_restarts < 0:
+            raise BrlInputError("max_restarts must be >= 0")
+        try:
+            self.reward_params()
+            self.route_reward()
+            self.camera()
+            DrivingEnv.check_episode_rules(self.offroad_end, self.start_offset_m, self.start_yaw_deg,
+                                           self.otherlane_end)
+        except ValueError as exc:
+            raise BrlInputError(f"bad training configuration: {exc}") from None
+        get_weather(self.weather)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        d = asdict(self)
+        d["route_kinds"] = list(self.route_kinds or ())
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
+        """Inverse of `to_dict`; unknown keys are an error."""
+        known = {f.name for f in fields(cls)}
+        extra = set(d) - known
+        if extra:
+            raise BrlInputError(f"unknown training config keys: {', '.join(sorted(extra))}")
+        d = dict(d)
+        if "road_view" not in d:  # a config written before the study's options: brl 0.1's choices
+            d.update(road_view="road", offroad_end=None)
+        if d.get("route_kinds") is not None:
+            d["route_kinds"] = tuple(d["route_kinds"])
+        return cls(**d)
+
+    @classmethod
+    def from_saved(cls, d: dict[str, Any], where: str) -> TrainConfig:
+        """A configuration an earlier brl saved (`where`: its file): retired keys at their off values are dropped, a
+        run that used a retired knob is refused with one line."""
+        d = drop_retired(d, RETIRED_CONFIG, where)
+        if isinstance(d.get("params"), dict):
+            d["params"] = drop_retired(d["params"], RETIRED_PARAMS, where)
+        try:
+            return cls.from_dict(d)
+        except BrlInputError as exc:
+            raise BrlInputError(f"{where} is not a configuration this brl can run: {exc}") from None
+        except (TypeError, ValueError):
+            raise BrlInputError(f"{where} is not a brl training configuration") from None
+
+    def for_seed(self, seed: int) -> TrainConfig:
+        """The same configuration for another seed."""
+        return replace(self, seed=seed)
+
+    def member_config(self, member: int) -> TrainConfig:
+        """The configuration of committee member `member`'s own run (one agent, that member's generators)."""
+        return replace(self, committee=1, member=member)
+
+    def reward_params(self) -> RewardParams:
+        """The reward's parameters for this run."""
+        return RewardParams(target_speed_kmh=self.target_speed_kmh, road_view=self.road_view)
+
+    def route_reward(self) -> RouteRewardParams | None:
+        """The route-following reward terms of a navigation run (None for lane keeping)."""
+        if self.task != "navigation":
+            return None
+        return RouteRewardParams(self.r_progress, self.r_wrong_turn, self.wrong_turn_m)
+
+    def camera(self) -> CameraConfig:
+        """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""
+        return CameraConfig(pitch_deg=self.camera_pitch_deg)
+
+    def agent_params(self) -> BRLParams:
+        """The agent's parameters for this run."""
+        base = BRLParams.reference_code() if self.variant == "reference-code" else BRLParams()
+        return BRLParams.from_dict({**base.to_dict(), **self.params}) if self.params else base
 
 
-def check_types(d: dict[str, Any], defaults: dict[str, Any], where: str = "", what: str = "training") -> None:
-    """Each value has its default's type (int for int, a number for float, a list for a tuple, ...)."""
-    for key, value in d.items():
-        default, name = defaults.get(key), f"{where}{key}"
-        if default is None:
-            continue
-        if isinstance(default, bool):
-            ok = isinstance(value, bool)
-        elif isinstance(default, int):
-            ok = isinstance(value, int) and not isinstance(value, bool)
-        elif isinstance(default, float):
-            ok = isinstance(value, int | float) and not isinstance(value, bool)
-        elif isinstance(default, list | tuple):
-            ok = isinstance(value, list | tuple)
-        elif isinstance(default, dict):
-            ok = isinstance(value, dict)
-            if ok and default and name not in OPEN_TABLES:
-                check_types(value, default, f"{name}.", what)
-        else:
-            ok = isinstance(value, type(default))
-        if not ok:
-            kinds = ((bool, "true or false"), (int, "an integer"), (float, "a number"), (str, "a string"),
-                     (list | tuple, "a list"), (dict, "a table"))
-            kind = next((k for t, k in kinds if isinstance(default, t)), type(default).__name__)
-            raise BrlInputError(f"{what} config key '{name}' must be {kind}, not {json.dumps(value, default=str)}")
-
-
-def variant_of(layers: Sequence[dict[str, Any]], default: str) -> str:
+def variant_of(layers: Sequence[Layer], default: str) -> str:
     """The variant the layers name (the last one that sets it), else `default`; unknown names are an error."""
     name = default
     for layer in layers:
-        if "variant" in layer:
-            name = layer["variant"]
+        if "variant" in layer.values:
+            name = layer.values["variant"]
     if not isinstance(name, str) or name not in VARIANT_PRESETS:
         raise BrlInputError(f"unknown variant {json.dumps(name, default=str)}; choose one of "
                             f"{', '.join(VARIANT_PRESETS)}")
     return name
 
 
-def resolve_config(layers: Sequence[dict[str, Any]], default_variant: str = "paper") -> TrainConfig:
-    """The defaults, the named variant's preset, then `layers` in order; validated with one-line errors."""
+def resolve_train_config(layers: Sequence[Layer], default_variant: str = DEFAULT_VARIANT,
+                         fill_segnet: bool = True) -> TrainConfig:
+    """The training configuration of `layers` (`brlcli.config.command_layers`, or a sweep grid's tables): the
+    defaults, the named variant's preset, the task's preset, then the layers in order; one-line errors. With
+    `fill_segnet`, estimated input without a net gets the shipped one (recorded in the config)."""
+    for layer in layers:
+        refuse_retired(layer.values, RETIRED_CONFIG)
+        if isinstance(layer.values.get("params"), dict):
+            refuse_retired(layer.values["params"], RETIRED_PARAMS, "params.")
+        for key, why in RESERVED_KEYS.items():
+            if key in layer.values:
+                raise BrlInputError(f"{layer.source} cannot set {key}: {why}")
     defaults = {**TrainConfig().to_dict(), "route_kinds": None}  # None: the task's routes (TASK_ROUTE_KINDS)
     variant = variant_of(layers, default_variant)
-    merged = merge_layer(defaults, {**VARIANT_PRESETS[variant], "variant": variant}, "", defaults)
-    task = next((layer["task"] for layer in reversed(layers) if "task" in layer), defaults["task"])
+    base = merge_layer(defaults, {**VARIANT_PRESETS[variant], "variant": variant}, "", defaults, open_tables=OPEN)
+    task = next((layer.values["task"] for layer in reversed(layers) if "task" in layer.values), defaults["task"])
     preset = TASK_PRESETS.get(task, {}) if isinstance(task, str) else {}  # an unknown task: TrainConfig says so
-    merged = merge_layer(merged, preset, "", defaults)
-    for layer in layers:
-        merged = merge_layer(merged, layer, "", defaults)
-    check_types(merged, defaults)
+    base = merge_layer(base, preset, "", defaults, open_tables=OPEN)
+    cfg = resolve(TrainConfig, layers, "training", base=base, defaults=defaults, open_tables=OPEN)
     try:
-        cfg = TrainConfig.from_dict(merged)
         cfg.agent_params()  # validates params.* (BRLParams.from_dict)
-    except BrlInputError:
-        raise
-    except (TypeError, ValueError) as exc:
+    except ValueError as exc:
         raise BrlInputError(" ".join(str(exc).split())) from None
+    if fill_segnet and cfg.input == "estimated" and cfg.segnet is None:
+        from brlcli.models import default_segnet_path
+
+        cfg = replace(cfg, segnet=str(default_segnet_path()))
+    if cfg.segnet is not None and cfg.input != "estimated":
+        raise BrlInputError("--segnet is only used with --input estimated")
+    from brlcli.sim.town import load_town
+
+    load_town(cfg.town)  # an unknown town or a bad town file fails here
     return cfg
-
-
-def parse_value(text: str) -> Any:
-    """A `--set` value: a TOML value (0.5, 12, true, "a", [1, 2], {a = 1}), else the text itself as a string."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def parse_sets(items: Sequence[str]) -> dict[str, Any]:
-    """`KEY=VALUE` items (dotted keys nest: params.gamma=0.8) as one override layer."""
-    layer: dict[str, Any] = {}
-    for item in items:
-        key, sep, text = item.partition("=")
-        key = key.strip()
-        parts = key.split(".")
-        if not sep or not key or any(not p for p in parts):
-            raise BrlInputError(f"--set '{item}' must be KEY=VALUE (dotted keys nest: --set params.gamma=0.8)")
-        table = layer
-        for i, part in enumerate(parts[:-1]):
-            sub = table.setdefault(part, {})
-            if not isinstance(sub, dict):
-                raise BrlInputError(f"--set '{item}': '{'.'.join(parts[:i + 1])}' was set to a value above")
-            table = sub
-        if isinstance(table.get(parts[-1]), dict):
-            raise BrlInputError(f"--set '{item}': '{key}' is a table; set its keys ({key}.NAME=VALUE)")
-        table[parts[-1]] = parse_value(text.strip())
-    return layer
-
-
-def read_config_file(path: str | Path, what: str = "--config") -> dict[str, Any]:
-    """A TOML (or .json) file of training config overrides, decoded; one-line errors."""
-    path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise BrlInputError(f"{what} {path}: cannot read it ({exc.strerror or exc})") from None
-    try:
-        if path.suffix.lower() == ".json":
-            doc = json.loads(data.decode("utf-8"))
-        else:
-            doc = tomllib.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-        kind = "JSON" if path.suffix.lower() == ".json" else "TOML"
-        raise BrlInputError(f"{what} {path}: not valid {kind} ({' '.join(str(exc).split())})") from None
-    if not isinstance(doc, dict):
-        raise BrlInputError(f"{what} {path}: the document must be a table")
-    return doc
-
-
-def resolve_plain_config(cls: Any, layers: Sequence[str | dict[str, Any] | Sequence[str] | None], what: str) -> Any:
-    """A config dataclass (`to_dict` / `from_dict`, no variants) from layers: a --config path, a dict of options
-    given on the command line, a list of --set items; each checked against the defaults with one-line errors."""
-    defaults = cls().to_dict()
-    merged = dict(defaults)
-    for layer in layers:
-        if layer is None:
-            continue
-        if isinstance(layer, str):
-            layer = read_config_file(layer)
-        elif not isinstance(layer, dict):
-            layer = parse_sets(layer)
-        merged = merge_layer(merged, layer, "", defaults, what)
-    check_types(merged, defaults, what=what)
-    try:
-        return cls.from_dict(merged)
-    except BrlInputError:
-        raise
-    except (TypeError, ValueError) as exc:
-        raise BrlInputError(" ".join(str(exc).split())) from None

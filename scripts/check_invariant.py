@@ -36,12 +36,12 @@ ROOT = Path(__file__).resolve().parents[1]
 RETIRED_DEFAULTS: dict[str, Any] = {
     "teams": 1, "team_share": 0.5, "shared_mixture": False, "warm_start_junctions": 0, "straight_as_follow": False,
     "no_backward": False, "r_heading": 0.0, "r_lateral": 0.0, "restart_offroad_above": None, "keep_best": False,
-    "exploration": "tau", "posterior_scale": 5.0, "td_error": "component",
+    "command_bootstrap": "next-branch", "exploration": "tau", "posterior_scale": 5.0, "td_error": "component",
 }
 """Config and parameter keys that issue 33 retired, at the value every retired knob had when it was off."""
 RETIRED_COLUMNS = ("r_heading", "r_lateral")
 """log.csv columns of retired knobs (always 0.0 when the knob was off)."""
-RETIRED_STATS = ("window_offroad", "warm_started", "best")
+RETIRED_STATS = ("warm_started", "best")
 VOLATILE = {"git_commit", "brl_version", "python", "steps_per_s", "frames_per_s", "fps"}
 """Record keys that differ between two runs of the same code (provenance, time; and every key naming a wall time)."""
 

@@ -417,36 +417,6 @@ def test_action_visit_step_size_averages_each_actions_own_td_targets() -> None:
     assert agent.Q[2, 0] == pytest.approx(-4.0, rel=1e-14)  # component-wide counts would give step 1/4
     assert agent.Q[0, 0] == 0.1 and agent.Q[3, 0] == 0.1
     np.testing.assert_array_equal(agent.visits, [[0.0], [3.0], [1.0], [0.0]])
-    with pytest.raises(ValueError, match="action-visits"):
-        BRLParams(step_size="action-visits", td_error="mixture")
-
-
-def test_posterior_exploration_samples_per_episode_and_narrows_with_visits() -> None:
-    """The episode's draw fixes the greedy action for the episode; tried actions' samples stay near Q."""
-    s = np.full(D, 1.0 / D)
-    greedy_per_episode = []
-    agent = BayesianAgent(D, A, BRLParams(exploration="posterior", posterior_scale=50.0, tau_init=1.0))
-    rng = np.random.default_rng(3)
-    for _ in range(40):
-        agent.begin_episode(rng)
-        acts = {agent.act(s, rng) for _ in range(5)}
-        assert len(acts) == 1  # tau 1: the sampled greedy action every time within an episode
-        greedy_per_episode.append(acts.pop())
-        assert agent.act(s, rng, greedy=True) == 0  # deployment: Q itself (all equal, lowest index)
-    assert len(set(greedy_per_episode)) == A  # untried actions: wide samples, every action greedy sometimes
-    agent._q[:, 0] = [0.0, -1.0, -1.0, -1.0]
-    agent._visits[:, 0] = 1e6  # well-tried: samples within 50 / 1000 of Q, so action 0 always wins
-    for _ in range(20):
-        agent.begin_episode(rng)
-        assert agent.act(s, rng) == 0
-    paper = BayesianAgent(D, A, BRLParams(tau_init=1.0))
-    before = rng.bit_generator.state
-    paper.begin_episode(rng)  # the paper's exploration draws nothing
-    assert rng.bit_generator.state == before
-    with pytest.raises(ValueError, match="exploration"):
-        BRLParams(exploration="ucb")
-    with pytest.raises(ValueError, match="posterior_scale"):
-        BRLParams(posterior_scale=-1.0)
 
 
 def test_schedules_follow_exponential_approach() -> None:
@@ -702,28 +672,23 @@ def test_learn_rejects_bad_inputs() -> None:
     assert agent.steps == 0
 
 
-def test_mixture_td_error_uses_the_mixture_values_and_updates_every_component() -> None:
-    """td_error = 'mixture': delta on Q(s, a) = sum_m phi_m(s) Q[a, m]; Q[a_t, m] moves by alpha phi_m delta."""
-    from brlcli.agent.bayes import log_likelihoods
+def test_model_files_of_retired_knobs_are_refused_and_their_off_values_read(tmp_path: os.PathLike) -> None:
+    """An older brl wrote exploration / td_error / posterior_scale into every model's params_json: at their off
+    values the file reads as before; a model trained with one of them is refused with the commit that reads it."""
+    import json
 
-    rng = np.random.default_rng(3)
-    params = BRLParams(td_error="mixture", init_scatter=1e-2)
-    agent = BayesianAgent(state_dim=4, n_actions=3, params=params)
-    for _ in range(60):  # grow a few components
-        s = rng.dirichlet(np.ones(4))
-        agent.learn(s, int(rng.integers(3)), float(rng.normal(-20, 10)), rng.dirichlet(np.ones(4)))
-    assert agent.n_components > 1
-    s, s_next, a_t = rng.dirichlet(np.ones(4)), rng.dirichlet(np.ones(4)), 1
-    phi = np.exp(log_likelihoods(agent, s) - log_likelihoods(agent, s).max())
-    phi /= phi.sum()
-    phi_next = np.exp(log_likelihoods(agent, s_next) - log_likelihoods(agent, s_next).max())
-    phi_next /= phi_next.sum()
-    q = agent.Q.copy()
-    r = q[a_t] @ phi - params.gamma * (q @ phi_next).max() + 2.5  # a TD error of 2.5: an update, no creation
-    expected_td = r + params.gamma * (q @ phi_next).max() - q[a_t] @ phi
-    n_before, alpha = agent.n_components, agent.alpha
-    step = agent.learn(s, a_t, r, s_next)
-    assert step.td_error == pytest.approx(2.5, rel=1e-9) and not step.created
-    assert agent.n_components == n_before and phi.max() < 1.0 - 1e-6  # the update reaches several components
-    np.testing.assert_allclose(agent.Q[a_t], q[a_t] + alpha * phi * expected_td, rtol=1e-9, atol=1e-12)
-    np.testing.assert_array_equal(np.delete(agent.Q, a_t, axis=0), np.delete(q, a_t, axis=0))
+    from brlcli.agent.bayes import save_model_arrays
+    from brlcli.retired import RETIRED_AT
+
+    agent = BayesianAgent(D, A)
+    arrays = agent.to_arrays()
+    old = {**agent.params.to_dict(), "exploration": "tau", "td_error": "component", "posterior_scale": 5.0}
+    save_model_arrays(os.path.join(tmp_path, "old.npz"), {**arrays, "params_json": np.array(json.dumps(old))})
+    assert BayesianAgent.load(os.path.join(tmp_path, "old.npz")).params == agent.params
+    posterior = {**old, "exploration": "posterior"}
+    save_model_arrays(os.path.join(tmp_path, "p.npz"), {**arrays, "params_json": np.array(json.dumps(posterior))})
+    with pytest.raises(BrlInputError, match=f"p.npz was made with exploration = 'posterior'.*{RETIRED_AT}"):
+        BayesianAgent.load(os.path.join(tmp_path, "p.npz"))
+    save_model_arrays(os.path.join(tmp_path, "b.npz"), {**arrays, "blocks": np.array(4)})
+    with pytest.raises(BrlInputError, match=r"shared mixture.*retired"):
+        BayesianAgent.load(os.path.join(tmp_path, "b.npz"))

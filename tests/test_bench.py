@@ -16,7 +16,8 @@ from brlcli.bench.suites import build_suite, parse_shard, shard, subset
 from brlcli.errors import BrlInputError
 from brlcli.policy import PolicySpec
 from brlcli.sim.town import load_town
-from brlcli.train import TrainConfig, train_run
+from brlcli.train import train_run
+from brlcli.trainconfig import TrainConfig
 
 
 @pytest.fixture(scope="module")

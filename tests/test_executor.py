@@ -15,7 +15,8 @@ from brlcli.bench.suites import build_suite, subset
 from brlcli.errors import BrlInputError
 from brlcli.executor import Executor, report, run_tasks
 from brlcli.policy import PolicySpec
-from brlcli.train import TrainConfig, train_many, train_run
+from brlcli.train import train_many, train_run
+from brlcli.trainconfig import TrainConfig
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from brlcli.policy import model_camera
 from brlcli.reward import RewardParams, reward_terms
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.gym_env import DrivingEnv
-from brlcli.train import TrainConfig
+from brlcli.trainconfig import TrainConfig
 
 
 def test_road_view_counts_road_lines_when_asked() -> None:

@@ -12,7 +12,7 @@ import pytest
 
 from brlcli.errors import BrlInputError
 from brlcli.sweep import load_grid, plan_sweep, run_sweep, write_tables
-from brlcli.train import TrainConfig
+from brlcli.trainconfig import TrainConfig
 
 GRID = """
 [base]
@@ -37,15 +37,15 @@ def _grid(tmp_path: Path, text: str, name: str = "grid.toml") -> Path:
 def test_grid_merges_base_and_nested_params(tmp_path: Path) -> None:
     grid = load_grid(_grid(tmp_path, GRID))
     assert list(grid) == ["paper", "speed6", "gamma8"]
-    default = TrainConfig().to_dict()
-    assert grid["paper"] == {**default, "steps": 60, "evaluate": False}
-    assert grid["speed6"]["target_speed_kmh"] == 6.0 and grid["speed6"]["steps"] == 60
-    assert grid["gamma8"]["params"] == {**default["params"], "gamma": 0.8}
-    assert TrainConfig.from_dict(grid["gamma8"]).agent_params().gamma == 0.8
+    default = TrainConfig()
+    assert grid["paper"] == TrainConfig(steps=60, evaluate=False)
+    assert grid["speed6"].target_speed_kmh == 6.0 and grid["speed6"].steps == 60
+    assert grid["gamma8"].params == {**default.params, "gamma": 0.8}
+    assert grid["gamma8"].agent_params().gamma == 0.8
     assert list(load_grid(_grid(tmp_path, GRID), ["gamma8", "paper"])) == ["paper", "gamma8"]
     as_json = {"base": {"steps": 60}, "variants": {"a": {"params": {"gamma": 0.7}}, "b": {}}}
     grid = load_grid(_grid(tmp_path, json.dumps(as_json), "grid.json"))
-    assert grid["a"]["params"] == {**default["params"], "gamma": 0.7} and grid["b"]["steps"] == 60
+    assert grid["a"].params == {**default.params, "gamma": 0.7} and grid["b"].steps == 60
 
 
 @pytest.mark.parametrize(("text", "words"), [

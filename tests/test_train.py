@@ -11,7 +11,8 @@ import pytest
 from brlcli.agent import BayesianAgent
 from brlcli.errors import BrlInputError
 from brlcli.evaluate import evaluate_lane_keeping
-from brlcli.train import LOG_COLUMNS, TrainConfig, parse_seeds, train_many, train_run
+from brlcli.train import LOG_COLUMNS, parse_seeds, train_many, train_run
+from brlcli.trainconfig import TrainConfig
 
 
 def _files(run: Path) -> tuple[bytes, bytes]:
@@ -33,21 +34,12 @@ def test_same_seed_gives_identical_log_and_model(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("params, extra", [({}, {}),
-                                           ({"step_size": "action-visits", "exploration": "posterior"}, {}),
+                                           ({"step_size": "action-visits"}, {}),
                                            ({}, {"task": "navigation"}),
-                                           ({"exploration": "posterior"},
-                                            {"task": "navigation", "branch_restart_below": [10.0] * 4,
-                                             "shared_mixture": True}),
-                                           ({}, {"task": "navigation", "branch_restart_below": [10.0] * 4,
-                                                 "warm_start_junctions": 40}),
-                                           ({}, {"task": "navigation", "branch_restart_below": [10.0] * 4,
-                                                 "teams": 2})])
+                                           ({}, {"task": "navigation", "branch_restart_below": [10.0] * 4})])
 def test_interrupted_run_resumes_bit_identical(tmp_path: Path, params: dict, extra: dict) -> None:
-    """Also with per-episode posterior draws (they come from the run's generator after each reset), for the
-    command-conditioned agent of the navigation task, and with its per-branch restarts (every branch restarts at
-    both checks when every threshold is above every reward), also with one mixture shared by the commands (its blocks
-    forgotten at the restarts) and from warm copies of the follow branch, and with two teams (TeamAgent) learning from
-    shared experience."""
+    """Also with the per-action step size, for the command-conditioned agent of the navigation task, and with its
+    per-branch restarts (every branch restarts at both checks when every threshold is above every reward)."""
     cfg = TrainConfig(steps=150, seed=1, evaluate=False, params={**TrainConfig().params, **params}, **extra)
     train_run(cfg, tmp_path / "full")
 
@@ -71,13 +63,33 @@ def test_interrupted_run_resumes_bit_identical(tmp_path: Path, params: dict, ext
         assert restarts and all(r["mean_reward"] < 10.0 for r in restarts)
 
 
-def test_posterior_draws_change_the_actions_and_counts_are_stored(tmp_path: Path) -> None:
-    base = {"step_size": "action-visits"}
-    train_run(TrainConfig(steps=120, seed=3, evaluate=False, params={**base, "exploration": "posterior"}),
-              tmp_path / "posterior")
-    train_run(TrainConfig(steps=120, seed=3, evaluate=False, params=base), tmp_path / "plain")
-    assert _files(tmp_path / "plain")[0] != _files(tmp_path / "posterior")[0]  # the draws change the actions taken
-    assert BayesianAgent.load(tmp_path / "posterior" / "model.npz").visits.sum() > 0
+def test_log_rows_are_written_by_column_name() -> None:
+    from brlcli.agent import LearnStep
+    from brlcli.train import Run, log_row
+
+    learned = LearnStep(-1.5, 2, False, 0.25, "neutral", 3, 0.9, 0.6, 0.1)
+    info = {"reward_terms": {"collision": 0.0, "offroad": 0.0, "otherlane": -2.0, "speed": -1.0, "road_view": 0.0},
+            "measurements": {"forward_speed_kmh": 12.0, "intersection_offroad": 0.0, "intersection_otherlane": 0.1,
+                             "x": 1.0, "y": 2.0}}
+    run = Run(TrainConfig(steps=10), None, np.random.default_rng(0), step=7, episode=2)  # type: ignore[arg-type]
+    row = log_row(run, 3, 1, -3.0, learned, info, 2)
+    assert list(row) == list(LOG_COLUMNS)
+    assert row["action"] == "right" and row["components"] == 3 and row["tau"] == 0.6 and row["r_progress"] == 0.0
+
+
+def test_retired_knobs_are_refused_with_the_commit_that_reruns_them(tmp_path: Path) -> None:
+    from brlcli.config import Layer
+    from brlcli.retired import RETIRED_AT
+    from brlcli.trainconfig import resolve_train_config
+
+    for layer in ({"teams": 3}, {"keep_best": True}, {"params": {"exploration": "posterior"}}, {"no_backward": False}):
+        with pytest.raises(BrlInputError, match=f"retired.*git checkout {RETIRED_AT}"):
+            resolve_train_config([Layer("--set", layer)])
+    saved = {**TrainConfig().to_dict(), "teams": 1, "shared_mixture": False, "r_heading": 0.0,
+             "params": {"init_scatter": 1e-3, "td_error": "component"}}
+    assert TrainConfig.from_saved(saved, "x/config.json") == TrainConfig()  # an older brl's run without the knobs
+    with pytest.raises(BrlInputError, match=r"x/config.json was made with teams = 3.*git checkout"):
+        TrainConfig.from_saved({**saved, "teams": 3}, "x/config.json")
 
 
 def test_model_set_does_not_depend_on_worker_count(tmp_path: Path) -> None:
@@ -205,26 +217,20 @@ def test_restarts_on_a_trap_and_resumes_bit_identical(tmp_path: Path) -> None:
     assert train_run(never, tmp_path / "never")["summary"]["attempts"] == 1
 
 
-def test_trap_test_reads_the_reward_and_the_off_road_share() -> None:
-    """The trap test fires at its checks only: on a low mean reward, or (if set) on a high off-road share."""
-    from brlcli.train import _trapped
+def test_trap_test_reads_the_reward_at_its_checks_only() -> None:
+    """The trap test fires at its checks only, on a low mean reward over its window, at most max_restarts times."""
+    from brlcli.train import Run, RunStats, TrapRestart
 
-    def stats(rewards: list[float], offroad: list[int], attempt: int = 0) -> dict:
-        return {"attempt": attempt, "attempt_start": 0, "checks_done": 0, "window": rewards,
-                "window_offroad": offroad}
+    cfg = TrainConfig(steps=90, restart_below=-7.0)
+    hook = TrapRestart(cfg)
 
-    reward_only = TrainConfig(steps=90, restart_below=-7.0)
-    both = TrainConfig(steps=90, restart_below=-7.0, restart_offroad_above=0.2)
-    assert not _trapped(reward_only, 29, stats([-9.0] * 15, [1] * 15))  # before the first check (a third)
-    assert _trapped(reward_only, 30, stats([-9.0] * 15, [0] * 15))
-    assert not _trapped(reward_only, 30, stats([-4.0] * 15, [1] * 15))  # edge hugging: the reward test misses it
-    assert _trapped(both, 30, stats([-4.0] * 15, [1] * 4 + [0] * 11))  # 4 / 15 off the road: above 0.2
-    assert not _trapped(both, 30, stats([-4.0] * 15, [1] * 3 + [0] * 12))  # 3 / 15 = 0.2: not above
-    assert not _trapped(both, 30, stats([-9.0] * 15, [1] * 15, attempt=2))  # max_restarts reached
-    s = stats([-4.0] * 15, [0] * 15)
-    assert not _trapped(both, 30, s) and s["checks_done"] == 1 and not _trapped(both, 31, s)  # one test per check
-    late = {**stats([-9.0] * 15, [1] * 15, attempt=1), "attempt_start": 61}
-    assert not _trapped(reward_only, 91, late)  # a restart at step 91 would run past 2 x 90 steps
-    assert _trapped(reward_only, 90, {**late, "attempt_start": 60, "checks_done": 0})
-    with pytest.raises(BrlInputError, match="needs restart_below"):
-        TrainConfig(restart_offroad_above=0.2)
+    def run(step: int, rewards: list[float], attempt: int = 0) -> Run:
+        return Run(cfg, None, np.random.default_rng(0), step=step,  # type: ignore[arg-type]
+                   stats=RunStats(attempt=attempt, window=rewards, window_offroad=[0] * len(rewards)))
+
+    assert not hook.trapped(run(29, [-9.0] * 15))  # before the first check (a third)
+    assert hook.trapped(run(30, [-9.0] * 15))
+    assert not hook.trapped(run(30, [-4.0] * 15))  # edge hugging: the reward test misses it
+    assert not hook.trapped(run(30, [-9.0] * 15, attempt=2))  # max_restarts reached
+    r = run(30, [-4.0] * 15)
+    assert not hook.trapped(r) and r.stats.checks_done == 1 and not hook.trapped(r)  # one test per check

@@ -10,9 +10,13 @@ from pathlib import Path
 import pytest
 
 from brlcli.baselines.deeprl import DeepRLConfig
+from brlcli.config import Layer, command_layers, parse_sets, parse_value, resolve
 from brlcli.errors import BrlInputError
-from brlcli.train import DEFAULT_VARIANT, VARIANT_PRESETS, TrainConfig
-from brlcli.trainconfig import parse_sets, parse_value, resolve_config, resolve_plain_config
+from brlcli.trainconfig import DEFAULT_VARIANT, VARIANT_PRESETS, TrainConfig, resolve_train_config
+
+
+def resolve_config(layers: list[dict], default_variant: str = "paper") -> TrainConfig:
+    return resolve_train_config([Layer(f"layer {i}", d) for i, d in enumerate(layers)], default_variant)
 
 
 def _brl(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -65,11 +69,11 @@ def test_every_variant_preset_resolves() -> None:
 
 
 def test_resolve_plain_config_for_train_rl() -> None:
-    cfg = resolve_plain_config(DeepRLConfig, [{"steps": 40}, ["otherlane_end=0.4", "camera_pitch_deg=-30"]],
-                               what="deep RL")
+    cfg = resolve(DeepRLConfig, command_layers(None, {"steps": 40}, ["otherlane_end=0.4", "camera_pitch_deg=-30"]),
+                  "deep RL")
     assert (cfg.steps, cfg.otherlane_end, cfg.camera().pitch_deg) == (40, 0.4, -30.0)
     with pytest.raises(BrlInputError, match="unknown deep RL config key 'params'"):
-        resolve_plain_config(DeepRLConfig, [["params.gamma=0.8"]], what="deep RL")
+        resolve(DeepRLConfig, command_layers(None, {}, ["params.gamma=0.8"]), "deep RL")
 
 
 def test_cli_print_config_shows_the_resolved_configuration(tmp_path: Path) -> None:

@@ -259,25 +259,8 @@ def _log_argmax(ll: np.ndarray, pma: np.ndarray, a: int) -> int:
 
 
 @_jit
-def _mixture_max(ll: np.ndarray, q: np.ndarray, n: int) -> float:
-    """max_a sum_m phi_m Q[a, m], phi the normalised likelihoods of ll[:n]."""
-    phi = _normalised(_shifted(ll, n))
-    best = -math.inf
-    for a in range(q.shape[0]):
-        v = 0.0
-        for m in range(n):
-            v += phi[m] * q[a, m]
-        if v > best:
-            best = v
-    return best
-
-
-@_jit
-def next_value(ll: np.ndarray, q: np.ndarray, n: int, over_actions: bool, mixture: bool) -> float:
-    """The value the TD target of `decide` takes at a next state with log-likelihoods ll[:n]: Q[a', m'] (eqs. 6-7),
-    or with `mixture` max_a sum_m phi_m Q[a, m]."""
-    if mixture:
-        return _mixture_max(ll, q, n)
+def next_value(ll: np.ndarray, q: np.ndarray, n: int, over_actions: bool) -> float:
+    """The value the TD target of `decide` takes at a next state with log-likelihoods ll[:n]: Q[a', m'] (eqs. 6-7)."""
     pma, p_a, _ = tables(q, n, over_actions)
     a_next = _argmax(_p_action(_shifted(ll, n), pma, p_a))
     return q[a_next, _log_argmax(ll, pma, a_next)]
@@ -286,11 +269,8 @@ def next_value(ll: np.ndarray, q: np.ndarray, n: int, over_actions: bool, mixtur
 @_jit
 def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.ndarray, n: int, a_t: int,
            reward: float, gamma: float, t_l: float, t_u: float,
-           reference_code: bool, mixture: bool) -> tuple[float, int, float, float, int]:
-    """Steps 1-3 of Algorithm 1 and the weight of eq. 9 for m_t: (td, m_t, d_t, weight, case 0 good/1 bad/2 neutral).
-
-    With `mixture` the TD error is taken on the mixture's action values Q(s, a) = sum_m phi_m(s) Q[a, m], phi the
-    normalised likelihoods (outside the paper: see BRLParams.td_error)."""
+           reference_code: bool) -> tuple[float, int, float, float, int]:
+    """Steps 1-3 of Algorithm 1 and the weight of eq. 9 for m_t: (td, m_t, d_t, weight, case 0 good/1 bad/2 neutral)."""
     pma, p_a, p_m = tables(q, n, reference_code)
     ll_t = ll[row_t]
     ll_next = ll[row_next]
@@ -300,18 +280,10 @@ def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.nd
         if dt[m] < dt[m_t]:
             m_t = m
     lik = _shifted(ll_t, n)
-    if mixture:
-        best = _mixture_max(ll_next, q, n)
-        phi_t = _normalised(lik)
-        q_t = 0.0
-        for m in range(n):
-            q_t += phi_t[m] * q[a_t, m]
-        td = reward + gamma * best - q_t
-    else:
-        a_next = _argmax(_p_action(_shifted(ll_next, n), pma, p_a))
-        m_next = _log_argmax(ll_next, pma, a_next)
-        m_delta = _log_argmax(ll_t, pma, a_t) if reference_code else m_t
-        td = reward + gamma * q[a_next, m_next] - q[a_t, m_delta]
+    a_next = _argmax(_p_action(_shifted(ll_next, n), pma, p_a))
+    m_next = _log_argmax(ll_next, pma, a_next)
+    m_delta = _log_argmax(ll_t, pma, a_t) if reference_code else m_t
+    td = reward + gamma * q[a_next, m_next] - q[a_t, m_delta]
     num = np.empty(n)
     if td > t_u:
         case = 0
@@ -328,16 +300,3 @@ def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.nd
         for m in range(n):
             num[m] = lik[m] * p_m[m]
     return td, m_t, dt[m_t], _normalised(num)[m_t], case
-
-
-@_jit
-def mixture_q_update(ll_t: np.ndarray, q: np.ndarray, kappa: np.ndarray, n: int, dim: int, a_t: int, td: float,
-                     alpha: float, visits: bool) -> None:
-    """Q[a_t, m] += step_m phi_m(s_t) td for every component (phi: normalised likelihoods; step_m = alpha, or
-    min(alpha, 1 / (kappa_m - D)) with `visits`)."""
-    phi = _normalised(_shifted(ll_t, n))
-    for m in range(n):
-        step = alpha
-        if visits:
-            step = min(step, 1.0 / (kappa[m] - dim))
-        q[a_t, m] += step * phi[m] * td

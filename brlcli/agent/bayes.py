@@ -45,6 +45,7 @@ from brlcli.agent import _kernels
 from brlcli.agent.params import BRLParams
 from brlcli.errors import BrlInputError
 from brlcli.npzio import save_npz
+from brlcli.retired import RETIRED_CONFIG, retired_message
 
 FORMAT_VERSION = 1
 """Version of the `.npz` model file written by `BayesianAgent.save`."""
@@ -73,6 +74,10 @@ class LearnStep:
     """'good' (delta > T_u), 'bad' (delta < T_l), 'neutral', 'created', or 'capacity' (creation refused)."""
     n_components: int
     """Number of components after the step."""
+    alpha: float
+    """The Q learning rate after the step's schedule update (and tau, rho likewise)."""
+    tau: float
+    rho: float
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -172,19 +177,12 @@ def _validated_state(state: Any, dim: int, what: str) -> np.ndarray:
 class BayesianAgent:
     """Mixture of NIW components with a Q column each; `learn` is Algorithm 1 of the paper."""
 
-    def __init__(self, state_dim: int = 30, n_actions: int = 4, params: BRLParams | None = None,
-                 n_blocks: int = 1) -> None:
-        """A fresh model: one component with mean 1/D, nu = D, kappa = D + 1, S = init_scatter I, Q = init_q.
-
-        With `n_blocks` > 1 (the shared-mixture command agent; outside the paper) every component carries that many
-        blocks of action values, each with its own alpha, tau and step count; `select_block` picks the block that
-        acting and learning use, and the components (and rho) are common to all blocks."""
+    def __init__(self, state_dim: int = 30, n_actions: int = 4, params: BRLParams | None = None) -> None:
+        """A fresh model: one component with mean 1/D, nu = D, kappa = D + 1, S = init_scatter I, Q = init_q."""
         if isinstance(state_dim, bool) or not isinstance(state_dim, int | np.integer) or state_dim < 1:
             raise ValueError(f"state_dim must be a positive integer, got {state_dim!r}")
         if isinstance(n_actions, bool) or not isinstance(n_actions, int | np.integer) or n_actions < 1:
             raise ValueError(f"n_actions must be a positive integer, got {n_actions!r}")
-        if isinstance(n_blocks, bool) or not isinstance(n_blocks, int | np.integer) or n_blocks < 1:
-            raise ValueError(f"n_blocks must be a positive integer, got {n_blocks!r}")
         params = BRLParams() if params is None else params
         if not isinstance(params, BRLParams):
             raise ValueError(f"params must be a BRLParams, got {type(params).__name__}")
@@ -195,9 +193,6 @@ class BayesianAgent:
         self._tau = params.tau_init
         self._rho = params.rho_init
         self._steps = 0
-        self._n_blocks = int(n_blocks)
-        self._block = 0
-        self._block_schedules = [(self._alpha, self._tau, 0)] * self._n_blocks  # (alpha, tau, steps) per block
         self._n = 0
         self._allocate(min(_INITIAL_CAPACITY, params.max_components))
         self._add_component(np.full(self._dim, 1.0 / self._dim))
@@ -221,48 +216,17 @@ class BayesianAgent:
             if old is not None and n:
                 arr[:n] = getattr(self, name)[:n]
             setattr(self, name, arr)
-        for name in ("_q_all", "_visits_all", "_noise_all"):  # action values, their weighted update counts, the
-            arr = np.zeros((self._n_blocks * self._n_actions, capacity))  # episode's draw; every block's rows
+        for name in ("_q", "_visits"):  # action values and their weighted update counts
+            arr = np.zeros((self._n_actions, capacity))
             if old is not None and n:
                 arr[:, :n] = getattr(self, name)[:, :n]
             setattr(self, name, arr)
-        self._bind_block()
         # likelihood cache: rows of (state, log p(s|m), ||s - mu_m||_inf), always valid for m < n
         self._cache_states = np.zeros((_CACHE_ROWS, dim))
         self._cache_ll = np.zeros((_CACHE_ROWS, capacity))
         self._cache_dist = np.zeros((_CACHE_ROWS, capacity))
         self._cache_keys: list[bytes | None] = [None] * _CACHE_ROWS
         self._cache_last = 0
-
-    def _bind_block(self) -> None:
-        """Point `_q`, `_visits` and `_noise` at the rows of the selected block."""
-        lo = self._block * self._n_actions
-        self._q = self._q_all[lo:lo + self._n_actions]
-        self._visits = self._visits_all[lo:lo + self._n_actions]
-        self._noise = self._noise_all[lo:lo + self._n_actions]
-
-    def select_block(self, block: int) -> None:
-        """Act and learn with block `block`'s action values and schedules (alpha, tau, steps) from now on."""
-        if block == self._block:
-            return
-        if not 0 <= block < self._n_blocks:
-            raise ValueError(f"block must lie in [0, {self._n_blocks}), got {block!r}")
-        self._block_schedules[self._block] = (self._alpha, self._tau, self._steps)
-        self._alpha, self._tau, self._steps = self._block_schedules[block]
-        self._block = int(block)
-        self._bind_block()
-
-    def reset_block(self, block: int) -> None:
-        """Forget block `block`'s action values, visit counts and schedules (its per-branch trap restart); the
-        components and the other blocks stay."""
-        p = self._params
-        lo = block * self._n_actions
-        for arr, value in ((self._q_all, p.init_q), (self._visits_all, 0.0), (self._noise_all, 0.0)):
-            arr[lo:lo + self._n_actions] = value
-        if block == self._block:
-            self._alpha, self._tau, self._steps = p.alpha_init, p.tau_init, 0
-        else:
-            self._block_schedules[block] = (p.alpha_init, p.tau_init, 0)
 
     def _capacity(self) -> int:
         """Number of preallocated component slots."""
@@ -285,28 +249,11 @@ class BayesianAgent:
         self._kappa[m] = dim + 1
         self._scatter[m] = p.init_scatter * np.eye(dim)
         self._chol[m] = math.sqrt(p.init_scatter) * np.eye(dim)
-        self._q_all[:, m] = p.init_q
-        self._visits_all[:, m] = 0.0
-        self._noise_all[:, m] = 0.0  # a component created mid-episode joins the draw at the next episode
+        self._q[:, m] = p.init_q
+        self._visits[:, m] = 0.0
         self._n = m + 1
         self._refresh(m)
         return m
-
-    def warm_copy(self) -> BayesianAgent:
-        """A new agent that starts from this one's components and action values, with its schedules (alpha, tau,
-        rho) at their initial values and no recorded visits, so that it explores again and its first updates of each
-        action value replace the copied one (a branch started from another branch's knowledge; outside the paper)."""
-        agent = BayesianAgent(self._dim, self._n_actions, self._params, self._n_blocks)
-        n = self._n
-        agent._n = 0
-        agent._allocate(self._capacity())
-        for name in ("_mean", "_kappa", "_nu", "_scatter", "_chol"):
-            getattr(agent, name)[:n] = getattr(self, name)[:n]
-        agent._q_all[:, :n] = self._q_all[:, :n]
-        agent._n = n
-        for m in range(n):
-            agent._refresh(m)
-        return agent
 
     def _checked(self, state: Any, what: str) -> tuple[np.ndarray, bytes, int]:
         """Validate a state (shape (D,), finite); return it as float64, its cache key and cache row (-1: absent)."""
@@ -350,11 +297,6 @@ class BayesianAgent:
     def n_actions(self) -> int:
         """Number of actions |A|."""
         return self._n_actions
-
-    @property
-    def n_blocks(self) -> int:
-        """Blocks of action values per component (1 but in the shared-mixture command agent)."""
-        return self._n_blocks
 
     @property
     def n_components(self) -> int:
@@ -437,20 +379,9 @@ class BayesianAgent:
         """Weighted count of updates of each action value, shape (|A|, M) (a copy)."""
         return self._visits[:, :self._n].copy()
 
-    def begin_episode(self, rng: np.random.Generator) -> None:
-        """Start a training episode: under exploration 'posterior' draw the episode's action-value sample."""
-        if self._params.exploration == "posterior":
-            self._noise[...] = rng.standard_normal(self._q.shape)
-
     def act(self, state: np.ndarray, rng: np.random.Generator, greedy: bool = False) -> int:
         """Behaviour policy (eq. 11): the greedy action gets (1 - tau)/|A| + tau, the others (1 - tau)/|A|."""
-        if greedy or self._params.exploration != "posterior":
-            greedy_action = int(np.argmax(self.action_probabilities(state)))
-        else:  # the greedy action of this episode's sample of the action values (BRLParams.exploration)
-            row = self._cached_row(*self._checked(state, "state"))
-            sample = self._q + self._params.posterior_scale * self._noise / np.sqrt(self._visits + 1.0)
-            greedy_action = int(np.argmax(_kernels.action_probs(self._cache_ll[row], sample, self._n,
-                                                                self._params.variant != "paper")))
+        greedy_action = int(np.argmax(self.action_probabilities(state)))
         if greedy:
             return greedy_action
         n_act = self._n_actions
@@ -465,15 +396,14 @@ class BayesianAgent:
     # -- learning --------------------------------------------------------------------------------------------
 
     def value(self, state: np.ndarray) -> float:
-        """The value Algorithm 1's TD target takes at a state: Q[a', m'] (eqs. 6-7; the mixture's with td_error
-        'mixture'). Another agent's learning step can bootstrap from it (`learn(..., next_value=)`)."""
+        """The value Algorithm 1's TD target takes at a state: Q[a', m'] (eqs. 6-7). Another agent's learning step can
+        bootstrap from it (`learn(..., next_value=)`)."""
         row = self._cached_row(*self._checked(state, "state"))
-        return float(_kernels.next_value(self._cache_ll[row], self._q, self._n, self._params.variant != "paper",
-                                         self._params.td_error == "mixture"))
+        return float(_kernels.next_value(self._cache_ll[row], self._q, self._n, self._params.variant != "paper"))
 
     def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray,
               next_value: float | None = None) -> LearnStep:
-        """One step of Algorithm 1 on (s_t, a_t, r_t, s_{t+1}); see docs/brl-math.md 'One learning step'.
+        """One step of Algorithm 1 on (s_t, a_t, r_t, s_{t+1}); docs/method.md, 'One learning step'.
 
         With `next_value` the TD target is r_t + gamma * next_value instead of this agent's own value of s_{t+1}
         (the command-conditioned agent, where the next decision belongs to another branch); `next_state` is then
@@ -500,49 +430,44 @@ class BayesianAgent:
         # steps 1-3 and the weight of eq. 9: a', m', m_t, d_t, the TD error (eq. 5) and w for m_t
         td_error, m_t, d_t, weight, case = _kernels.decide(
             self._cache_ll, self._cache_dist, row_t, row_next, self._q, self._n, a_t, reward_in, gamma, p.T_l,
-            p.T_u, p.variant != "paper", p.td_error == "mixture")
+            p.T_u, p.variant != "paper")
         m_t = int(m_t)
         weight = float(weight)
         s_t = self._cache_states[row_t].copy()
 
         if d_t < self._rho or td_error > p.T_l:
             self._update(m_t, a_t, s_t, td_error, weight, row_t)
-            step = LearnStep(td_error, m_t, False, weight, WEIGHT_CASES[case], 0)
+            step = (m_t, False, weight, WEIGHT_CASES[case])
         elif self._n < p.max_components:
             m_new = self._add_component(s_t)
             if p.new_q == "nearest":  # m_t's action values, the taken action at the value just observed
-                self._q_all[:, m_new] = self._q_all[:, m_t]  # every block's
+                self._q[:, m_new] = self._q[:, m_t]
                 self._q[a_t, m_new] = self._q[a_t, m_t] + td_error
             else:
                 self._q[a_t, m_new] = p.new_q_taken
-            step = LearnStep(td_error, m_new, True, math.nan, "created", 0)
+            step = (m_new, True, math.nan, "created")
         elif p.at_capacity == "merge":
             self._update(m_t, a_t, s_t, td_error, weight, row_t)
-            step = LearnStep(td_error, m_t, False, weight, "capacity", 0)
+            step = (m_t, False, weight, "capacity")
         else:  # "skip"
-            step = LearnStep(td_error, m_t, False, 0.0, "capacity", 0)
+            step = (m_t, False, 0.0, "capacity")
 
         # 6. schedules
         self._alpha += p.alpha_rate * (p.alpha_final - self._alpha)
         self._tau += p.tau_rate * (p.tau_final - self._tau)
         self._rho += p.rho_rate * (p.rho_final - self._rho)
         self._steps += 1
-        return LearnStep(step.td_error, step.component, step.created, step.weight, step.weight_case, self._n)
+        return LearnStep(td_error, *step, self._n, self._alpha, self._tau, self._rho)
 
     def _update(self, m: int, a_t: int, s_t: np.ndarray, td_error: float, weight: float, row_t: int) -> None:
         """Q update (eq. 8) and fractional NIW update of component m with weight w."""
         kappa = float(self._kappa[m])
-        visits = self._params.step_size == "visits"
-        if self._params.td_error == "mixture":  # every component, by its share of s_t's likelihood
-            _kernels.mixture_q_update(self._cache_ll[row_t], self._q, self._kappa, self._n, self._dim, a_t, td_error,
-                                      self._alpha, visits)
-        else:
-            step = self._alpha
-            if visits:  # 1 / (weighted updates + 1): kappa starts at D + 1
-                step = min(step, 1.0 / (kappa - self._dim))
-            elif self._params.step_size == "action-visits":
-                step = min(step, 1.0 / (self._visits[a_t, m] + 1.0))
-            self._q[a_t, m] += step * weight * td_error
+        step = self._alpha
+        if self._params.step_size == "visits":  # 1 / (weighted updates + 1): kappa starts at D + 1
+            step = min(step, 1.0 / (kappa - self._dim))
+        elif self._params.step_size == "action-visits":
+            step = min(step, 1.0 / (self._visits[a_t, m] + 1.0))
+        self._q[a_t, m] += step * weight * td_error
         self._visits[a_t, m] += weight
         if weight == 0.0:
             return
@@ -556,14 +481,6 @@ class BayesianAgent:
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The model's arrays as `save` writes them (format version, parameters, components, schedules)."""
         n = self._n
-        blocks: dict[str, np.ndarray] = {}
-        if self._n_blocks > 1:  # the shared-mixture agent: every block's schedules (the scalars are the selected one's)
-            schedules = list(self._block_schedules)
-            schedules[self._block] = (self._alpha, self._tau, self._steps)
-            blocks = {"blocks": np.array(self._n_blocks, dtype=np.int64),
-                      "block_alpha": np.array([s[0] for s in schedules]),
-                      "block_tau": np.array([s[1] for s in schedules]),
-                      "block_steps": np.array([s[2] for s in schedules], dtype=np.int64)}
         return {
             "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
             "params_json": np.array(json.dumps(self._params.to_dict(), sort_keys=True)),
@@ -574,13 +491,12 @@ class BayesianAgent:
             "nu": self._nu[:n],
             "scatter": self._scatter[:n],
             "chol": self._chol[:n],
-            "Q": self._q_all[:, :n],
-            "visits": self._visits_all[:, :n],
+            "Q": self._q[:, :n],
+            "visits": self._visits[:, :n],
             "alpha": np.array(self._alpha),
             "tau": np.array(self._tau),
             "rho": np.array(self._rho),
             "steps": np.array(self._steps, dtype=np.int64),
-            **blocks,
         }
 
     def save(self, path: str | os.PathLike[str]) -> None:
@@ -628,16 +544,16 @@ class BayesianAgent:
         if version != FORMAT_VERSION:
             raise BrlInputError(f"model file {path} has format version {version}, this brl reads {FORMAT_VERSION}")
         try:
-            params = BRLParams.from_dict(json.loads(scalar("params_json", "U")))
+            params = BRLParams.from_dict(json.loads(scalar("params_json", "U")), where=f"model file {path}")
         except (ValueError, TypeError) as exc:
             raise BrlInputError(f"model file {path} has bad parameters: {_one_line(exc)}") from None
         dim, n_actions = scalar("state_dim", "iu"), scalar("n_actions", "iu")
         if dim < 1 or n_actions < 1:
             raise BrlInputError(f"model file {path} has state_dim {dim} and n_actions {n_actions}")
-        n_blocks = scalar("blocks", "iu") if "blocks" in npz.files else 1
-        if n_blocks < 1:
-            raise BrlInputError(f"model file {path} has {n_blocks} blocks of action values")
-        rows = n_blocks * n_actions
+        if "blocks" in npz.files:  # a mixture shared by the commands, with a block of action values per command
+            retired = retired_message("shared_mixture", RETIRED_CONFIG["shared_mixture"])
+            raise BrlInputError(f"model file {path} has a shared mixture: {retired}")
+        rows = n_actions
         means = get("means")
         if means.ndim != 2 or means.shape[1] != dim:
             raise BrlInputError(f"model file {path}: means has shape {means.shape}, expected (M, {dim})")
@@ -669,15 +585,8 @@ class BayesianAgent:
         steps = scalar("steps", "iu")
         if not all(math.isfinite(v) for v in schedule.values()) or steps < 0:
             raise BrlInputError(f"model file {path} has invalid schedule values or step count")
-        schedules = [(schedule["alpha"], schedule["tau"], int(steps))]
-        if n_blocks > 1:
-            per_block = [get(key) for key in ("block_alpha", "block_tau", "block_steps")]
-            if any(a.shape != (n_blocks,) for a in per_block) or per_block[2].dtype.kind not in "iu" \
-                    or not all(np.isfinite(a).all() for a in per_block[:2]) or (per_block[2] < 0).any():
-                raise BrlInputError(f"model file {path} has invalid per-block schedules")
-            schedules = [(float(a), float(t), int(k)) for a, t, k in zip(*per_block, strict=True)]
 
-        agent = cls(int(dim), int(n_actions), params, int(n_blocks))
+        agent = cls(int(dim), int(n_actions), params)
         capacity = min(params.max_components, max(_INITIAL_CAPACITY, 1 << (n - 1).bit_length()))
         agent._n = 0
         agent._allocate(capacity)
@@ -686,13 +595,12 @@ class BayesianAgent:
         agent._nu[:n] = arrays["nu"]
         agent._scatter[:n] = arrays["scatter"]
         agent._chol[:n] = arrays["chol"]
-        agent._q_all[:, :n] = arrays["Q"]
-        agent._visits_all[:, :n] = visits
+        agent._q[:, :n] = arrays["Q"]
+        agent._visits[:, :n] = visits
         agent._n = n
         for m in range(n):  # cold path: the caches, computed exactly as learn() computes them
             agent._refresh(m)
-        agent._block_schedules = schedules
-        agent._alpha, agent._tau, agent._steps = schedules[0]
+        agent._alpha, agent._tau, agent._steps = schedule["alpha"], schedule["tau"], int(steps)
         agent._rho = schedule["rho"]
         return agent
 

@@ -6,6 +6,8 @@ import math
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
+from brlcli.retired import RETIRED_PARAMS, drop_retired
+
 VARIANTS = ("paper", "reference-code")
 """`paper`: the equations as printed. `reference-code`: Q + qhat normalised over actions per component and
 m_t = argmax_m p(m | a_t, s_t) inside the TD error, as in the authors' code (see brl-math.md)."""
@@ -22,27 +24,12 @@ component's Q is an average of its TD targets rather than the last of them; `act
 min(alpha_t, 1 / (n[a, m] + 1)) with n[a, m] the weighted count of updates of Q[a, m] itself, so that each action
 value is the average of its own TD targets."""
 
-EXPLORATIONS = ("tau", "posterior")
-"""The behaviour policy's greedy action (eq. 11): `tau`, the paper's: argmax_a p(a|s) on Q; `posterior` (outside the
-paper): at each episode's start the agent draws z[a, m] ~ N(0, 1) and, for that episode, takes the greedy action of
-eq. 11 on Q[a, m] + posterior_scale * z[a, m] / sqrt(n[a, m] + 1) (n: the weighted count of updates of Q[a, m]),
-a per-episode sample of the action values whose spread shrinks as an action is tried (posterior sampling, "deep
-exploration"); the TD target and deployment keep Q itself."""
-
-TD_ERRORS = ("component", "mixture")
-"""The TD error and Q update (eqs. 5, 8): `component`, the paper's: delta = r + gamma Q[a', m'] - Q[a_t, m_t] with
-m_t the l_inf-nearest component, and only Q[a_t, m_t] updated; `mixture` (outside the paper): delta on the
-mixture's action values Q(s, a) = sum_m phi_m(s) Q[a, m], phi_m(s) = p(s|m) / sum_k p(s|k) (the values whose argmax
-is the greedy action of eq. 1), and every Q[a_t, m] updated in proportion to phi_m(s_t) (soft state aggregation).
-Component creation and the NIW update of m_t keep Algorithm 1's rules, on this delta."""
-
 AT_CAPACITY_POLICIES = ("merge", "skip")
 """What learn() does when it would create a component but `max_components` are in use:
 `merge` updates the l_inf-nearest component m_t with the usual weight rule instead (Q and NIW update);
 `skip` leaves Q and the components unchanged. Both report weight_case "capacity" and never raise."""
 
-_CHOICES = {"variant": VARIANTS, "at_capacity": AT_CAPACITY_POLICIES, "new_q": NEW_Q_RULES, "step_size": STEP_SIZES,
-            "td_error": TD_ERRORS, "exploration": EXPLORATIONS}
+_CHOICES = {"variant": VARIANTS, "at_capacity": AT_CAPACITY_POLICIES, "new_q": NEW_Q_RULES, "step_size": STEP_SIZES}
 """The string fields of BRLParams and their allowed values."""
 
 
@@ -85,12 +72,6 @@ class BRLParams:
     """How a new component's Q column starts (see NEW_Q_RULES)."""
     step_size: str = "schedule"
     """The Q update's step size (see STEP_SIZES); 'schedule' is the paper's."""
-    td_error: str = "component"
-    """The TD error and the components it updates (see TD_ERRORS); 'component' is the paper's."""
-    exploration: str = "tau"
-    """How the behaviour policy picks its greedy action (see EXPLORATIONS); 'tau' is the paper's."""
-    posterior_scale: float = 5.0
-    """Spread (reward units) of a never-updated action value's sample under exploration = 'posterior'."""
 
     def __post_init__(self) -> None:
         """Validate every field; a bad value raises ValueError naming it."""
@@ -120,10 +101,6 @@ class BRLParams:
                 raise ValueError(f"BRLParams.{name} must be >= 0, got {getattr(self, name)}")
         if self.init_scatter <= 0.0:
             raise ValueError(f"BRLParams.init_scatter must be > 0, got {self.init_scatter}")
-        if self.td_error == "mixture" and self.step_size == "action-visits":
-            raise ValueError("BRLParams.step_size 'action-visits' works with td_error 'component' only")
-        if self.posterior_scale < 0.0:
-            raise ValueError(f"BRLParams.posterior_scale must be >= 0, got {self.posterior_scale}")
         if self.T_l > self.T_u:
             raise ValueError(f"BRLParams.T_l ({self.T_l}) must not exceed T_u ({self.T_u})")
 
@@ -138,10 +115,13 @@ class BRLParams:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> BRLParams:
-        """Build from a dict; unknown keys raise ValueError, missing keys take their defaults."""
+    def from_dict(cls, data: dict[str, Any], where: str = "the parameters") -> BRLParams:
+        """Build from a dict; unknown keys raise ValueError, missing keys take their defaults. Retired keys
+        (`brlcli.retired.RETIRED_PARAMS`) of an older brl's file at their off values are dropped; `where` names that
+        file in the error for one that used a retired knob."""
         if not isinstance(data, dict):
             raise ValueError(f"BRLParams needs a mapping, got {type(data).__name__}")
+        data = drop_retired(data, RETIRED_PARAMS, where)
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:

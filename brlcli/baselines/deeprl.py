@@ -19,8 +19,8 @@ from __future__ import annotations
 import io
 import json
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -29,9 +29,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from brlcli.config import Layer, resolve
 from brlcli.curve import CURVE_FILE, Evaluator, write_curve
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM
+from brlcli.outdir import refuse_existing
 from brlcli.policy import StatePolicy, setting_name
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.reward import RewardParams, RouteRewardParams
@@ -86,6 +88,8 @@ class DeepRLConfig:
         check_input_source(self.input, "--input")
         if self.steps < 1 or self.eval_every < 1:
             raise BrlInputError("--steps and --eval-every must be at least 1")
+        if self.seed < 0:
+            raise BrlInputError(f"--seed must be >= 0, got {self.seed}")
         if self.eval_every % self.train_freq:
             raise BrlInputError(f"--eval-every must be a multiple of the train frequency ({self.train_freq})")
         if self.task not in TASKS:
@@ -144,6 +148,22 @@ class DeepRLConfig:
         if "net_arch" in d:
             d["net_arch"] = tuple(d["net_arch"])
         return cls(**d)
+
+
+def resolve_deep_rl_config(layers: Sequence[Layer]) -> DeepRLConfig:
+    """The deep RL configuration of a command line's layers (`brlcli.config.command_layers`), validated once; estimated
+    input without a net gets the shipped one (recorded in the config)."""
+    from brlcli.sim.town import load_town
+
+    cfg = resolve(DeepRLConfig, layers, "deep RL")
+    if cfg.segnet is not None and cfg.input != "estimated":
+        raise BrlInputError("--segnet is only used with --input estimated")
+    if cfg.input == "estimated" and cfg.segnet is None:
+        from brlcli.models import default_segnet_path
+
+        cfg = replace(cfg, segnet=str(default_segnet_path()))
+    load_town(cfg.town)
+    return cfg
 
 
 def q_network(net_arch: tuple[int, ...], state_dim: int, n_actions: int) -> nn.Sequential:
@@ -347,14 +367,12 @@ def check_run_dir(cfg: DeepRLConfig, run_dir: Path, resume: bool) -> None:
     """Refuse to overwrite a run, or to resume one made with other options."""
     config_path = Path(run_dir) / "config.json"
     if config_path.exists():
-        if not resume:
-            raise BrlInputError(f"{run_dir} already holds a deep RL run; pass --resume or choose another --out")
+        refuse_existing(run_dir, "a deep RL run", resume)
         try:
             saved = json.loads(config_path.read_text())["config"]
         except (json.JSONDecodeError, KeyError, TypeError):
             raise BrlInputError(f"{config_path} is not a brl deep RL configuration") from None
-        if DeepRLConfig.from_dict(saved).to_dict() != cfg.to_dict():
-            raise BrlInputError(f"{run_dir} holds a run with another configuration; resume it with the same options")
+        refuse_existing(run_dir, "a deep RL run", resume, DeepRLConfig.from_dict(saved) == cfg)
 
 
 def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
@@ -371,6 +389,7 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
     run_dir = Path(run_dir)
     config_path = run_dir / "config.json"
     check_run_dir(cfg, run_dir, resume)
+    labeler_for(cfg.input, cfg.segnet, "--input")  # a bad segmentation net fails before anything is written
     if (run_dir / "summary.json").exists():
         return json.loads((run_dir / "summary.json").read_text())
     run_dir.mkdir(parents=True, exist_ok=True)

@@ -25,7 +25,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ import torch
 from torch import nn
 
 from brlcli.errors import BrlInputError
+from brlcli.outdir import refuse_existing
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.segnet import check_input_source
 from brlcli.sim.roadnet import BRANCH_COMMANDS, BRANCH_NAMES, command_branch
@@ -277,12 +278,25 @@ class ILTrainConfig:
             raise BrlInputError("--val-fraction must be in [0, 1)")
         if self.lr <= 0:
             raise BrlInputError("--lr must be positive")
+        if self.seed < 0:
+            raise BrlInputError(f"--seed must be >= 0, got {self.seed}")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
         d = asdict(self)
         d["loss_weights"] = list(self.loss_weights)
         return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ILTrainConfig:
+        """Inverse of `to_dict`; unknown keys are an error."""
+        extra = set(d) - {f.name for f in fields(cls)}
+        if extra:
+            raise BrlInputError(f"unknown imitation-learning config keys: {', '.join(sorted(extra))}")
+        d = dict(d)
+        if "loss_weights" in d:
+            d["loss_weights"] = tuple(d["loss_weights"])
+        return cls(**d)
 
 
 def _losses(net: ILNet, x: torch.Tensor, speed: torch.Tensor, branch: torch.Tensor, target: torch.Tensor,
@@ -349,8 +363,8 @@ def train_il(cfg: ILTrainConfig, data: list[str], out: Path, val: list[str] | No
     if len(train) < cfg.batch_size:
         raise BrlInputError(f"only {len(train)} training frames; need at least one batch of {cfg.batch_size}")
     config = {**cfg.to_dict(), "data": [str(d) for d in data], "val": [str(v) for v in val or []]}
-    if (out / "config.json").exists() and not resume:
-        raise BrlInputError(f"{out} already holds an imitation-learning run; pass --resume or choose another --out")
+    if (out / "config.json").exists():
+        refuse_existing(out, "an imitation-learning run", resume)
     out.mkdir(parents=True, exist_ok=True)
     if not (resume and (out / "last.pt").exists()):
         atomic_write_json(out / "config.json", provenance(config, kind="train-il"))

@@ -9,7 +9,7 @@ Definitions follow docs/benchmark.md sections 1-3. Event counting reproduces the
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
@@ -281,3 +281,42 @@ def posterior_summary(successes: int, failures: int, level: float = 0.95) -> dic
     post = beta_posterior(successes, failures)
     tail = (1.0 - level) / 2.0
     return {"mean": float(post.mean()), "lo": float(post.ppf(tail)), "hi": float(post.ppf(1.0 - tail))}
+
+
+@dataclass(frozen=True)
+class ModelStats:
+    """One model's test-table row from its episodes (step shares pooled over all its steps)."""
+
+    setting: str
+    policy: str
+    episodes: int
+    steps: int
+    offroad: float
+    otherlane: float
+    either: float
+    success: float
+    no_collision: float
+    score: float
+    dist_m: float
+    successes: int
+    collision_free: int
+
+
+def model_stats(setting: str, policy: str, episodes: Sequence[dict[str, Any]]) -> ModelStats:
+    """Offroad / Otherlane / Either from the *_steps counts pooled over the episodes; Success, No collision and
+    Score (metrics.paper_score) over episodes; Dist = sum of km * 1000."""
+    steps = sum(int(ep["steps"]) for ep in episodes)
+    n = len(episodes)
+    successes = sum(bool(ep["success"]) for ep in episodes)
+    collision_free = sum(not bool(ep["collided"]) for ep in episodes)
+
+    def share(key: str) -> float:
+        return sum(int(ep[key]) for ep in episodes) / steps if steps else float("nan")
+
+    either = share("either_steps")
+    success, no_collision = successes / n, collision_free / n
+    return ModelStats(setting=setting, policy=policy, episodes=n, steps=steps, offroad=share("offroad_steps"),
+                      otherlane=share("otherlane_steps"), either=either, success=success, no_collision=no_collision,
+                      score=paper_score(either, success, no_collision),
+                      dist_m=sum(float(ep["km"]) for ep in episodes) * 1000.0, successes=successes,
+                      collision_free=collision_free)

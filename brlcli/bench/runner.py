@@ -27,6 +27,7 @@ from brlcli.episode import EpisodeSpec
 from brlcli.errors import BrlInputError
 from brlcli.executor import Executor, run_tasks
 from brlcli.npzio import npz_bytes
+from brlcli.outdir import refuse_existing
 from brlcli.policy import Observation, Policy, PolicySpec
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.sim.roadnet import Navigator
@@ -170,12 +171,7 @@ def prepare(out: Path, config: dict[str, Any], resume: bool) -> set[tuple[str, s
     meta = out / "bench.json"
     if meta.exists():
         saved = json.loads(meta.read_text())["config"]
-        if not resume:
-            raise BrlInputError(f"{out} already holds bench results ({saved.get('suite')}); pass --resume or "
-                                "choose another --out")
-        if saved != config:
-            raise BrlInputError(f"{out} holds results of another configuration (suite {saved.get('suite')}); "
-                                "resume with the same options or choose another --out")
+        refuse_existing(out, f"bench results ({saved.get('suite')})", resume, saved == config)
     elif resume and out.exists() and any(out.iterdir()):
         raise BrlInputError(f"{out} is not a bench results directory (no bench.json)")
     out.mkdir(parents=True, exist_ok=True)

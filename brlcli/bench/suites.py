@@ -11,6 +11,7 @@ from brlcli.errors import BrlInputError
 from brlcli.sim.gym_env import route_timeout_s
 from brlcli.sim.roadnet import RoadNetwork
 from brlcli.sim.town import load_town
+from brlcli.sim.traffic import CORL_TRAFFIC
 from brlcli.sim.weather import TEST_WEATHERS, TRAIN_WEATHERS, get_weather
 
 SUITES = ("paper", "validation", "corl2017", "nocrash", "nav_validation")
@@ -31,7 +32,6 @@ CORL_CONDITIONS = {
     "new_town": ("town02", TRAIN_WEATHERS),
     "new_town_weather": ("town02", TEST_WEATHERS),
 }
-CORL_TRAFFIC = {"town01": (20, 50), "town02": (15, 50)}
 NOCRASH_TASKS = ("empty", "regular", "dense")
 NOCRASH_WEATHERS_TEST = (10, 14)
 """NoCrash's new weathers: WetSunset and SoftRainSunset (CoRL2017's are 4 and 14)."""

@@ -14,8 +14,9 @@ import numpy as np
 
 from brlcli.bench.metrics import (
     INFRACTION_TYPES,
+    ModelStats,
     km_between_infractions,
-    paper_score,
+    model_stats,
     posterior_summary,
     success_rate_over_weathers,
 )
@@ -125,45 +126,6 @@ def setting_order(settings: Sequence[str]) -> list[str]:
 
 # --------------------------------------------------------------------------------------------------------------
 # The paper's test suite
-
-
-@dataclass(frozen=True)
-class ModelStats:
-    """One model's test-table row from its episodes (step shares pooled over all its steps)."""
-
-    setting: str
-    policy: str
-    episodes: int
-    steps: int
-    offroad: float
-    otherlane: float
-    either: float
-    success: float
-    no_collision: float
-    score: float
-    dist_m: float
-    successes: int
-    collision_free: int
-
-
-def model_stats(setting: str, policy: str, episodes: Sequence[dict[str, Any]]) -> ModelStats:
-    """Offroad / Otherlane / Either from the *_steps counts pooled over the episodes; Success, No collision and
-    Score (metrics.paper_score) over episodes; Dist = sum of km * 1000."""
-    steps = sum(int(ep["steps"]) for ep in episodes)
-    n = len(episodes)
-    successes = sum(bool(ep["success"]) for ep in episodes)
-    collision_free = sum(not bool(ep["collided"]) for ep in episodes)
-
-    def share(key: str) -> float:
-        return sum(int(ep[key]) for ep in episodes) / steps if steps else float("nan")
-
-    either = share("either_steps")
-    success, no_collision = successes / n, collision_free / n
-    return ModelStats(setting=setting, policy=policy, episodes=n, steps=steps, offroad=share("offroad_steps"),
-                      otherlane=share("otherlane_steps"), either=either, success=success, no_collision=no_collision,
-                      score=paper_score(either, success, no_collision),
-                      dist_m=sum(float(ep["km"]) for ep in episodes) * 1000.0, successes=successes,
-                      collision_free=collision_free)
 
 
 def best_model(models: Sequence[ModelStats]) -> ModelStats:

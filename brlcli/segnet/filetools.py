@@ -53,3 +53,73 @@ def _check_size(path: Path, meta: dict[str, Any], sets: dict[str, Frames]) -> No
             got = frames[0][1].shape
             raise BrlInputError(f"segmentation net {path} takes {size[1]}x{size[0]} images, the frames of {name} are "
                                 f"{got[1]}x{got[0]}; record them with brl collect --width {size[1]} --height {size[0]}")
+
+
+def set_name(data: str) -> str:
+    """A data set's name in tables: its directory name."""
+    return Path(data).name or str(data)
+
+
+def check_new_file(out: Path, what: str = "--out") -> None:
+    """Refuse, before any work, an output file that is a directory or cannot be written (a missing or read-only
+    directory)."""
+    import os
+
+    from brlcli.errors import BrlInputError
+
+    out = Path(out)
+    if out.is_dir():
+        raise BrlInputError(f"{what} {out} is a directory; give a file name")
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise BrlInputError(f"cannot write {what} {out}: directory {parent} is missing or not writable")
+
+
+def evaluate_on_bags(segnet: str | None, data: Sequence[str], calibrated: bool = True, out: Path | None = None,
+                     status: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """`brl eval-seg`: a net file (default: the shipped one) on each --data set of bags; the figures also to `out`
+    (JSON, with their provenance)."""
+    from brlcli.bags import find_bags
+    from brlcli.models import default_segnet_path
+    from brlcli.provenance import atomic_write_json, provenance
+    from brlcli.segdata import load_frames
+
+    path = Path(segnet) if segnet else default_segnet_path()
+    load_segnet(path)  # a bad file fails before the bags are read
+    sets = {set_name(d): find_bags([d]) for d in data}
+    if out is not None:
+        check_new_file(out)
+    if status:
+        status("reading bags")
+    frames = {name: load_frames(bags) for name, bags in sets.items()}
+    if status:
+        status("segmenting")
+    result = evaluate_file(path, frames, calibrated=calibrated)
+    if out is not None:
+        atomic_write_json(out, provenance({"segnet": str(path), "data": {k: [str(b) for b in v]
+                                                                          for k, v in sets.items()},
+                                           "uncalibrated": not calibrated}) | {"results": result})
+    return result
+
+
+def calibrate_on_bags(segnet: str | None, data: Sequence[str], out: Path,
+                      status: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """`brl calibrate-seg`: fit a net file's logit offsets (default: the shipped net) on held-out bags; the
+    calibrated net goes to `out`, which must not exist."""
+    from brlcli.bags import find_bags
+    from brlcli.errors import BrlInputError
+    from brlcli.models import default_segnet_path
+    from brlcli.segdata import load_frames
+
+    path = Path(segnet) if segnet else default_segnet_path()
+    load_segnet(path, deployable=False)
+    bags = find_bags(list(data))
+    if Path(out).exists():
+        raise BrlInputError(f"{out} already exists; choose another --out")
+    check_new_file(out)
+    if status:
+        status("reading bags")
+    frames = load_frames(bags)
+    name = ",".join(set_name(d) for d in data)
+    return calibrate_file(path, frames, Path(out), name,
+                          progress=(lambda m: status(f"calibrating: {m}")) if status else None)

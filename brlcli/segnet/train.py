@@ -7,7 +7,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +16,7 @@ import torch
 import torch.nn.functional as F
 
 from brlcli.errors import BrlInputError
+from brlcli.outdir import refuse_existing
 from brlcli.provenance import atomic_write_bytes
 from brlcli.segnet.calibrate import calibrate
 from brlcli.segnet.infer import batch_logits, normalise
@@ -55,6 +56,14 @@ class SegTrainConfig:
             raise BrlInputError("--workers must be at least 1")
         if self.select not in SELECTIONS:
             raise BrlInputError(f"--select must be {' or '.join(SELECTIONS)}, not '{self.select}'")
+        if self.seed < 0:
+            raise BrlInputError(f"--seed must be >= 0, got {self.seed}")
+        try:
+            net = SegNetConfig.from_dict(self.net)
+        except (TypeError, KeyError, ValueError) as exc:
+            raise BrlInputError(f"bad segmentation net configuration (net.*): {exc}") from None
+        if net.fine < 0:
+            raise BrlInputError("--fine-channels (net.fine) must be >= 0")
         if self.class_weighting not in CLASS_WEIGHTINGS:
             raise BrlInputError(f"--class-weights must be {' or '.join(CLASS_WEIGHTINGS)}, "
                                 f"not '{self.class_weighting}'")
@@ -62,6 +71,14 @@ class SegTrainConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SegTrainConfig:
+        """Inverse of `to_dict`; unknown keys are an error."""
+        extra = set(d) - {f.name for f in fields(cls)}
+        if extra:
+            raise BrlInputError(f"unknown segmentation config keys: {', '.join(sorted(extra))}")
+        return cls(**d)
 
 
 def presence_targets(labels: np.ndarray) -> np.ndarray:
@@ -137,8 +154,7 @@ def train_segnet(train: Frames, val_sets: dict[str, Frames], cfg: SegTrainConfig
     meta = {"mean": mean.tolist(), "std": std.tolist(), "input_size": [h, w], "train_config": cfg.to_dict()}
     if resume and (out / "last.pt").exists():
         state = load_checkpoint(out / "last.pt")
-        if state["extra"]["train_config"] != cfg.to_dict():
-            raise BrlInputError(f"{out} was trained with other options; resume with the same options")
+        refuse_existing(out, "a segmentation run", resume, state["extra"]["train_config"] == cfg.to_dict())
         net.load_state_dict(state["state_dict"])
         opt.load_state_dict(state["extra"]["optimizer"])
         torch.set_rng_state(state["extra"]["torch_rng"])
@@ -225,3 +241,27 @@ def calibrate_run(out: Path, val_sets: dict[str, Frames], progress: Callable[[di
                                              "calibration": json.dumps(record)})
     atomic_write_bytes(out / "calibration.json", (json.dumps(record, indent=2, sort_keys=True) + "\n").encode())
     return record
+
+
+def train_from_bags(cfg: SegTrainConfig, data: Sequence[str], val: Sequence[str] | None, val_fraction: float,
+                    out: Path, resume: bool = False, progress: Callable[[dict], None] | None = None) -> dict[str, Any]:
+    """`brl train-seg`: the training bags and validation sets (each --val one set, or whole episodes of --data held
+    out), config.json (the configuration and the bags; resume needs the same), then `train_segnet`. `progress` first
+    receives {"frames": N, "val": {set: N}} once the bags are read."""
+    from brlcli.provenance import atomic_write_json, provenance
+    from brlcli.segdata import load_frames, resolve_data
+
+    out = Path(out)
+    train_bags, val_bags = resolve_data(data, val, val_fraction, cfg.seed)
+    record = provenance({**cfg.to_dict(), "data": [str(b) for b in train_bags],
+                         "val": {k: [str(b) for b in v] for k, v in val_bags.items()}}, kind="train-seg")
+    cfg_path = out / "config.json"
+    if cfg_path.exists():
+        same = json.loads(cfg_path.read_text())["config"] == record["config"]
+        refuse_existing(out, "a segmentation run", resume, same)
+    train_frames = load_frames(train_bags)
+    val_frames = {k: load_frames(v) for k, v in val_bags.items()}
+    if progress:
+        progress({"frames": len(train_frames), "val": {k: len(v) for k, v in val_frames.items()}})
+    atomic_write_json(cfg_path, record)
+    return train_segnet(train_frames, val_frames, cfg, out, progress=progress, resume=resume)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any, ClassVar
 
@@ -162,12 +161,10 @@ class DrivingEnv(gym.Env):
         s, lateral = self.route.project(m.x, m.y)
         wrong_turn = False
         if self.route_reward is not None:
-            heading_error = math.remainder(math.radians(m.yaw_deg) - self.route.heading_at(s), math.tau)
             extra = route_terms(s - self._route_s, self.reward_params.target_speed_kmh / 3.6 * FRAMES_PER_DECISION *
-                                FRAME_DT_S, lateral, self.route_reward, heading_error)
+                                FRAME_DT_S, lateral, self.route_reward)
             wrong_turn = extra["wrong_turn"] < 0.0
-            terms = {**terms, **extra, "total": terms["total"] + extra["progress"] + extra["wrong_turn"] +
-                     extra["heading"] + extra["lateral"]}
+            terms = {**terms, **extra, "total": terms["total"] + extra["progress"] + extra["wrong_turn"]}
         self._route_s = s
         dist_goal = float(np.hypot(m.x - self.route.goal[0], m.y - self.route.goal[1]))
         terminated = dist_goal <= GOAL_TOLERANCE_M or s >= self.route.length_m - GOAL_TOLERANCE_M

@@ -12,6 +12,8 @@ from brlcli.classes import CarlaClass
 from brlcli.sim.roadnet import RoadNetwork, offset_polyline
 from brlcli.sim.vehicle import HEIGHT_M, LENGTH_M, WIDTH_M
 
+CORL_TRAFFIC = {"town01": (20, 50), "town02": (15, 50)}
+"""(vehicles, pedestrians) of CoRL2017's traffic per town (navigation with dynamic obstacles)."""
 VEHICLE_SPEED_KMH = (20.0, 32.0)
 """Range of the traffic vehicles' cruise speeds, km/h (halved on junction connectors)."""
 PEDESTRIAN_SPEED_MS = (0.9, 1.6)

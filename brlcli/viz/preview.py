@@ -15,6 +15,23 @@ from brlcli.sim.world import World
 from brlcli.viz.topdown import town_topdown
 
 
+def check_previews(towns: list[str], weathers: str, seed: int) -> tuple[list[str], list[str]]:
+    """`brl preview`'s towns and comma-separated weathers, checked before anything is drawn."""
+    from brlcli.errors import BrlInputError
+    from brlcli.sim.town import load_town
+
+    for name in towns:
+        load_town(name)
+    weather_list = [w.strip() for w in weathers.split(",") if w.strip()]
+    if not weather_list:
+        raise BrlInputError(f"--weathers '{weathers}' names no weather; give ids or names, e.g. --weathers 1,6,8,14")
+    for w in weather_list:
+        get_weather(w)
+    if seed < 0:
+        raise BrlInputError(f"--seed must be >= 0, got {seed}")
+    return list(towns), weather_list
+
+
 def encode_png(rgb: np.ndarray) -> bytes:
     """RGB uint8 image -> PNG bytes."""
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
