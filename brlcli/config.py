@@ -152,3 +152,12 @@ def resolve(cls: type[C], layers: Sequence[Layer], what: str, base: dict[str, An
         raise
     except (TypeError, ValueError) as exc:
         raise BrlInputError(" ".join(str(exc).split())) from None
+
+
+def check_known_keys(cls: type, d: dict[str, Any], what: str) -> None:
+    """A one-line error for keys of `d` that are no field of the config dataclass `cls` (its `from_dict`)."""
+    from dataclasses import fields
+
+    extra = set(d) - {f.name for f in fields(cls)}
+    if extra:
+        raise BrlInputError(f"unknown {what} config keys: {', '.join(sorted(extra))}")

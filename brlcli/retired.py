@@ -36,7 +36,7 @@ RETIRED_CONFIG: dict[str, Retired] = {
     "r_lateral": Retired(0.0, "docs/navigation-study.md section 5, row 14"),
     "restart_offroad_above": Retired(None, "docs/lane-keeping-study.md, row 35"),
     "keep_best": Retired(False, "docs/navigation-study.md section 4, rows 10 and 12"),
-    "command_bootstrap": Retired("next-branch", "docs/navigation-study.md section 3, rows 4-9 (own-branch)"),
+    "command_bootstrap": Retired("next-branch", "docs/navigation-study.md section 3, rows 1-7 (own-branch)"),
 }
 """Retired keys of the training configuration (`brl train`, `brl sweep` grids)."""
 

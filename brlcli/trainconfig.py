@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 from brlcli.agent import BRLParams
-from brlcli.config import Layer, merge_layer, resolve
+from brlcli.config import Layer, check_known_keys, merge_layer, resolve
 from brlcli.errors import BrlInputError
 from brlcli.retired import RETIRED_CONFIG, RETIRED_PARAMS, drop_retired, refuse_retired
 from brlcli.reward import RewardParams, RouteRewardParams
@@ -159,10 +159,7 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
         """Inverse of `to_dict`; unknown keys are an error."""
-        known = {f.name for f in fields(cls)}
-        extra = set(d) - known
-        if extra:
-            raise BrlInputError(f"unknown training config keys: {', '.join(sorted(extra))}")
+        check_known_keys(cls, d, "training")
         d = dict(d)
         if "road_view" not in d:  # a config written before the study's options: brl 0.1's choices
             d.update(road_view="road", offroad_end=None)

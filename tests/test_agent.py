@@ -49,7 +49,7 @@ def offset_tables(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def oracle_step(agent: BayesianAgent, s: np.ndarray, a: int, r: float, s2: np.ndarray) -> dict:
-    """What learn(s, a, r, s2) must do, per brl-math.md, computed without the agent's code."""
+    """What learn(s, a, r, s2) must do, per docs/method.md, computed without the agent's code."""
     p = agent.params
     q = agent.Q
     p_m_a, p_a, p_m = offset_tables(q)

@@ -1,6 +1,6 @@
 """The fast agent against a plain, loop-based, slow implementation of the same equations (issue 11).
 
-`ReferenceAgent` is written for this test from docs/brl-math.md and the docstring of `BayesianAgent.learn`:
+`ReferenceAgent` is written for this test from docs/method.md and the docstring of `BayesianAgent.learn`:
 its own Student-t log density (numpy.linalg on the scale matrix Sigma, no Cholesky caches), the NIW update
 from its definition, eqs. 1-11 and Algorithm 1 with Python loops over components and actions. Both agents are
 driven side by side on one random stream; every step must agree.

@@ -25,7 +25,7 @@ VEH = INFRACTION_RULES["collision_vehicles"]  # skip 10, recount 30, threshold 4
 
 
 def _reference_collisions(x: np.ndarray, skip: int, recount: int, thr: float, wrap: bool = False) -> int:
-    """Straight transcription of the benchmark.md loop; wrap=True is CARLA's original x[i - skip]."""
+    """Straight transcription of the loop in docs/benchmarks.md; wrap=True is CARLA's original x[i - skip]."""
     events, i = 0, 1
     while i < len(x):
         ref = x[i - skip] if wrap else x[max(i - skip, 0)]

@@ -1,5 +1,5 @@
 """The Docker image's files agree with the project: the lock pins every dependency within pyproject's ranges, the
-README's Ray version is the lock's, the image runs as a numeric non-root user and gets no git metadata."""
+docs/deploy.md's Ray version is the lock's, the image runs as a numeric non-root user and gets no git metadata."""
 
 import re
 import tomllib
@@ -32,8 +32,8 @@ def test_the_lock_pins_every_dependency_within_pyproject_ranges() -> None:
     assert pins["torch"].local == "cpu"  # never the CUDA build
 
 
-def test_readme_ray_version_is_the_lock_s_and_the_user_is_numeric() -> None:
-    readme = (ROOT / "README.md").read_text()
+def test_deploy_doc_ray_version_is_the_lock_s_and_the_user_is_numeric() -> None:
+    readme = (ROOT / "docs" / "deploy.md").read_text()
     assert re.search(r'rayVersion: "([^"]+)"', readme).group(1) == str(_lock()["ray"])
     dockerfile = (ROOT / "Dockerfile").read_text()
     users = re.findall(r"^USER (\S+)", dockerfile, re.M)

@@ -150,7 +150,7 @@ def test_score_and_either_on_hand_made_episodes(tmp_path: Path) -> None:
 
 
 def test_paper_checks_and_average_best_rows(tmp_path: Path) -> None:
-    # the two checks of benchmark.md section 1, through the table: Either 2.4 %, 100 %, 100 % -> 0.99
+    # the two checks in docs/benchmarks.md, 'Metrics', through the table: Either 2.4 %, 100 %, 100 % -> 0.99
     good = [paper_episode("m/good", "TGDG", n, steps=1000, off=24 if n == 0 else 0) for n in range(1)]
     # Either 52.4 %, 41.7 %, 50 % -> 0.46 (12 episodes: 5 successes, 6 collisions; 524 of 1000 steps)
     bad = [paper_episode("m/bad", "TGDG", n, steps=1000 if n == 0 else 0, off=524 if n == 0 else 0,

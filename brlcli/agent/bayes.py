@@ -1,6 +1,6 @@
 """The Bayesian RL agent of Gharaee et al. (ICPR 2020, Section III), after Firouzi et al. (2012).
 
-Where each paper equation lives (the details the paper leaves open follow docs/brl-math.md):
+Where each paper equation lives (the details the paper leaves open: docs/method.md):
 
 - p(s|m), the NIW posterior predictive Student-t with dof nu' = nu - D + 1 and scale
   Sigma = (kappa + 1) / (kappa nu') S: `student_t_logpdf` (stateless, numpy) and, on the hot path,

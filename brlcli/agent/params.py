@@ -10,10 +10,10 @@ from brlcli.retired import RETIRED_PARAMS, drop_retired
 
 VARIANTS = ("paper", "reference-code")
 """`paper`: the equations as printed. `reference-code`: Q + qhat normalised over actions per component and
-m_t = argmax_m p(m | a_t, s_t) inside the TD error, as in the authors' code (see brl-math.md)."""
+m_t = argmax_m p(m | a_t, s_t) inside the TD error, as in the authors' code (docs/method.md)."""
 
 NEW_Q_RULES = ("constant", "nearest")
-"""The Q column of a component created after the bad action a_t (Algorithm 1 does not say; docs/brl-math.md):
+"""The Q column of a component created after the bad action a_t (Algorithm 1 does not say; docs/method.md):
 `constant`: init_q for every action and new_q_taken for a_t (the authors' code); `nearest`: a copy of the l_inf-nearest
 component m_t's column, with Q[a_t, new] = the step's TD target r_t + gamma Q[a', m']."""
 

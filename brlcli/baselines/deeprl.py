@@ -20,7 +20,7 @@ import io
 import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from brlcli.config import Layer, resolve
+from brlcli.config import Layer, check_known_keys, resolve
 from brlcli.curve import CURVE_FILE, Evaluator, write_curve
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM
@@ -139,9 +139,7 @@ class DeepRLConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> DeepRLConfig:
         """Inverse of `to_dict`; unknown keys are an error."""
-        extra = set(d) - {f.name for f in fields(cls)}
-        if extra:
-            raise BrlInputError(f"unknown deep RL config keys: {', '.join(sorted(extra))}")
+        check_known_keys(cls, d, "deep RL")
         d = dict(d)
         if "road_view" not in d:  # written before brl train's study defaults: brl 0.1's reward and episodes
             d.update(road_view="road", offroad_end=None)

@@ -25,7 +25,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from brlcli.config import check_known_keys
 from brlcli.errors import BrlInputError
 from brlcli.outdir import refuse_existing
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
@@ -290,9 +291,7 @@ class ILTrainConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ILTrainConfig:
         """Inverse of `to_dict`; unknown keys are an error."""
-        extra = set(d) - {f.name for f in fields(cls)}
-        if extra:
-            raise BrlInputError(f"unknown imitation-learning config keys: {', '.join(sorted(extra))}")
+        check_known_keys(cls, d, "imitation-learning")
         d = dict(d)
         if "loss_weights" in d:
             d["loss_weights"] = tuple(d["loss_weights"])

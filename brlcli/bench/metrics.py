@@ -1,7 +1,7 @@
 """Benchmark metrics: CoRL2017 infraction events and km between them, success over weathers,
 the paper's test-table row (Either / Success / No collision / Score / Dist) and Jeffreys Beta posteriors.
 
-Definitions follow docs/benchmark.md sections 1-3. Event counting reproduces the CARLA 0.8 benchmark loops
+Definitions: docs/benchmarks.md, 'Metrics'. Event counting reproduces the CARLA 0.8 benchmark loops
 (`driving_benchmark/metrics.py`) except for one documented fix: the rise at frame i is measured against
 ``x[max(i - skip, 0)]`` rather than the wrap-around ``x[i - skip]``.
 """
@@ -41,7 +41,7 @@ INFRACTION_RULES: Mapping[str, InfractionRule] = MappingProxyType({
     "collision_vehicles": InfractionRule("collision_vehicles", skip=10, recount=30, threshold=400.0),
     "collision_pedestrians": InfractionRule("collision_pedestrians", skip=5, recount=100, threshold=300.0),
 })
-"""CoRL2017 constants per infraction type (benchmark.md section 3)."""
+"""CoRL2017 constants per infraction type (docs/benchmarks.md, 'Metrics')."""
 
 INFRACTION_TYPES: tuple[str, ...] = tuple(INFRACTION_RULES)
 """Infraction types in report order: offroad, otherlane, collision_other, collision_vehicles, collision_pedestrians."""

@@ -1,7 +1,7 @@
 """Published figures printed beside ours: the paper's test table, CARLA's Table 1 and the paper's Town02 table.
 
 Sources: the seed paper (Gharaee et al., ICPR 2020) tables `tab:ZGHSmall` and `tab:carlacompTown02`, and CARLA
-(Dosovitskiy et al., CoRL 2017) Table 1 as transcribed in docs/benchmark.md. Shares are percentages as printed.
+(Dosovitskiy et al., CoRL 2017) Table 1 as transcribed in docs/benchmarks.md. Shares are percentages as printed.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +15,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from brlcli.config import check_known_keys
 from brlcli.errors import BrlInputError
 from brlcli.outdir import refuse_existing
 from brlcli.provenance import atomic_write_bytes
@@ -75,9 +76,7 @@ class SegTrainConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> SegTrainConfig:
         """Inverse of `to_dict`; unknown keys are an error."""
-        extra = set(d) - {f.name for f in fields(cls)}
-        if extra:
-            raise BrlInputError(f"unknown segmentation config keys: {', '.join(sorted(extra))}")
+        check_known_keys(cls, d, "segmentation")
         return cls(**d)
 
 
