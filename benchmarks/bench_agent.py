@@ -93,7 +93,8 @@ def worker_agent(inputs: Path) -> dict[str, float]:
 def worker_train(steps: int) -> dict[str, float]:
     """`brl train` learning steps/s over `steps` steps and the share of the wall time spent in act + learn."""
     from brlcli.agent import BayesianAgent
-    from brlcli.train import TrainConfig, train_run
+    from brlcli.train import train_run
+    from brlcli.trainconfig import TrainConfig
 
     inside = [0.0]
 

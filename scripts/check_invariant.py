@@ -212,9 +212,9 @@ def digest_tree(out: Path) -> dict[str, str]:
 
 
 def digest_models(models: Path) -> str:
-    """One digest of every file under a models/ directory."""
+    """One digest of every model file under a models/ directory (its READMEs aside)."""
     h = hashlib.sha256()
-    for path in sorted(p for p in models.rglob("*") if p.is_file()):
+    for path in sorted(p for p in models.rglob("*") if p.is_file() and p.suffix != ".md"):
         h.update(str(path.relative_to(models)).encode() + path.read_bytes())
     return h.hexdigest()
 

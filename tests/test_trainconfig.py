@@ -138,3 +138,50 @@ def test_models_keep_their_variant_in_bench_labels(tmp_path: Path) -> None:
     assert {row["setting"] for row in rows} == {"TGDG (reference-code)"}
     policies = json.loads((bench / "bench.json").read_text())["config"]["policies"]
     assert [p["variant"] for p in policies] == ["reference-code"]
+
+
+def test_cli_option_defaults_are_the_configurations_defaults() -> None:
+    """The defaults `brl CMD -h` shows are the configuration's (an option left at its default is not a layer)."""
+    import typer.main
+
+    from brlcli.baselines.il import ILTrainConfig
+    from brlcli.cli import app
+    from brlcli.segnet.train import SegTrainConfig
+
+    commands = typer.main.get_command(app).commands  # type: ignore[attr-defined]
+
+    def defaults(name: str) -> dict:
+        return {p.name: p.default for p in commands[name].params}
+
+    train, cfg = defaults("train"), TrainConfig()
+    for key in ("task", "town", "input", "steps", "seed", "target_speed_kmh", "evaluate", "segnet", "curve_every"):
+        assert train[key] == getattr(cfg, key), key
+    assert train["variant"] == DEFAULT_VARIANT and int(train["weather"]) == cfg.weather
+    rl, rl_cfg = defaults("train-rl"), DeepRLConfig()
+    for key in ("algo", "task", "town", "input", "steps", "eval_every", "eval_suite", "seed", "segnet"):
+        assert rl[key] == getattr(rl_cfg, key), key
+    assert int(rl["weather"]) == rl_cfg.weather
+    il, il_cfg = defaults("train-il"), ILTrainConfig()
+    assert (il["epochs"], il["batch_size"], il["seed"], il["workers"], il["val_fraction"]) == (
+        il_cfg.epochs, il_cfg.batch_size, il_cfg.seed, il_cfg.threads, il_cfg.val_fraction)
+    seg, seg_cfg = defaults("train-seg"), SegTrainConfig()
+    assert (seg["epochs"], seg["batch_size"], seg["seed"], seg["workers"], seg["class_weights"], seg["select"],
+            seg["fine_channels"]) == (seg_cfg.epochs, seg_cfg.batch_size, seg_cfg.seed, seg_cfg.threads,
+                                      seg_cfg.class_weighting, seg_cfg.select, seg_cfg.net["fine"])
+
+
+def test_options_left_at_their_default_do_not_override_a_config_file(tmp_path: Path) -> None:
+    toml = tmp_path / "nav.toml"
+    toml.write_text('task = "navigation"\nsteps = 900\n')
+    r = _brl("train", "--config", str(toml), "--print-config")
+    assert r.returncode == 0, r.stderr
+    cfg = json.loads(r.stdout)
+    assert cfg["task"] == "navigation" and cfg["steps"] == 900 and cfg["params"]["new_q"] == "nearest"
+    r = _brl("train", "--task", "navigation", "--print-config")
+    assert json.loads(r.stdout)["steps"] == 27000  # the task's preset, not the option's default
+    r = _brl("train-seg", "--data", "x", "--config", str(tmp_path / "seg.toml"), "--print-config")
+    assert r.returncode == 2 and "cannot read it" in r.stderr
+    (tmp_path / "seg.toml").write_text("epochs = 3\n[net]\nfine = 16\n")
+    r = _brl("train-seg", "--data", "x", "--config", str(tmp_path / "seg.toml"), "--workers", "1", "--print-config")
+    seg = json.loads(r.stdout)
+    assert (seg["epochs"], seg["net"]["fine"], seg["threads"]) == (3, 16, 1)
