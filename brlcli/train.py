@@ -497,10 +497,9 @@ class TrainingLog:
             atomic_write_bytes(path, b"".join(line + b"\n" for line in lines[: keep_rows + 1]))
 
     def append(self, rows: Sequence[dict[str, Any]]) -> None:
-        """Append rows (every LOG_COLUMNS key, no other)."""
+        """Append rows, each value under its LOG_COLUMNS name."""
         with open(self.path, "a", newline="") as fh:
-            writer = csv.DictWriter(fh, LOG_COLUMNS, lineterminator="\n")
-            writer.writerows({k: _format(v) for k, v in row.items()} for row in rows)
+            csv.writer(fh, lineterminator="\n").writerows([_format(row[c]) for c in LOG_COLUMNS] for row in rows)
 
 
 class Checkpoint:
