@@ -253,9 +253,10 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     log = TrainingLog(run_dir / "log.csv", keep_rows=None if run is None else run.step)
     run = run or Run.start(cfg)
     curve = LearningCurve(run_dir, cfg, env.labeler, run.step) if cfg.curve_every else None
+    reporter = ProgressReport(progress) if progress else None
     hooks = [h for h in (TrapRestart(cfg) if cfg.restart_below is not None else None,
                          BranchRestart(cfg) if cfg.branch_restart_below is not None else None,
-                         curve, ProgressReport(progress) if progress else None) if h is not None]
+                         curve, reporter) if h is not None]
     t0 = time.perf_counter() - run.stats.wall_s
     while not run.done:
         rows, reached = run_episode(env, run, hooks)
@@ -274,9 +275,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         hook.close()
     record = {**provenance(cfg.to_dict()), "summary": _summary(run, wall)}
     atomic_write_json(run_dir / "summary.json", record)
-    if progress:
-        progress(Progress(cfg.seed, run.step, run.step, run.episode, 0.0, 0.0,
-                          run.agent.branch(run.command).n_components, done=True, member=cfg.member))
+    if reporter:
+        reporter.finish(run)
     return record
 
 
@@ -451,14 +451,22 @@ class ProgressReport(Hook):
     def __init__(self, progress: Callable[[Progress], None]) -> None:
         self.progress = progress
         self.recent: list[float] = []
+        self.td_error = 0.0
 
     def on_step(self, run: Run, reward: float, learned: LearnStep, command: int, info: dict[str, Any]) -> None:
         """Report every PROGRESS_EVERY steps."""
         self.recent = [*self.recent, reward][-100:]
+        self.td_error = learned.td_error
         if run.step % PROGRESS_EVERY == 0:
             self.progress(Progress(run.cfg.seed, run.step, run.stats.attempt_start + run.cfg.steps, run.episode,
                                    float(np.mean(self.recent)), learned.td_error, learned.n_components,
                                    member=run.cfg.member))
+
+    def finish(self, run: Run) -> None:
+        """The last report, when the run's summary is written."""
+        self.progress(Progress(run.cfg.seed, run.step, run.step, run.episode,
+                               float(np.mean(self.recent)) if self.recent else 0.0, self.td_error,
+                               run.agent.branch(run.command).n_components, done=True, member=run.cfg.member))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -565,7 +573,8 @@ def make_env(cfg: TrainConfig) -> DrivingEnv:
                       camera=cfg.camera(), offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
                       start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end,
                       route_reward=cfg.route_reward(), junction_weight=cfg.junction_weight if nav else None,
-                      junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None)
+                      junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None,
+                      start_along_m=cfg.start_along_m)
 
 
 def greedy_policy(model: Any, task: str, setting: str, labels: Callable[[np.ndarray], np.ndarray] | None,

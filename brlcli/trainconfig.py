@@ -88,6 +88,7 @@ class TrainConfig:
     start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m ...
     start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
     otherlane_end: float | None = None  # end a training episode when the share in the opposite lane exceeds it
+    start_along_m: float = 0.0  # training episodes start ~ U(0, c) m along their route (a shorter approach)
     restart_below: float | None = None  # outside the paper: restart learning (a fresh agent) when the mean reward
     # per step over the last RESTART_WINDOW of steps is below this at RESTART_CHECKS of an attempt (None: never)
     max_restarts: int = 2  # at most this many restarts, and none that would take a run past 2 x steps; the last
@@ -140,6 +141,8 @@ class TrainConfig:
             raise BrlInputError("--curve-every must be >= 0")
         if self.max_restarts < 0:
             raise BrlInputError("max_restarts must be >= 0")
+        if not self.start_along_m >= 0:
+            raise BrlInputError(f"start_along_m must be >= 0 (m), got {self.start_along_m}")
         try:
             self.reward_params()
             self.route_reward()

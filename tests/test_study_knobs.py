@@ -91,3 +91,18 @@ def test_configs_written_before_the_study_keep_brl_0_1_choices() -> None:
     new = TrainConfig()
     assert new.road_view == "road+line" and new.offroad_end == 0.5 and new.agent_params().init_scatter == 1e-3
     assert TrainConfig.from_dict(new.to_dict()) == new
+
+
+def test_start_along_shortens_the_approach_within_its_bound() -> None:
+    env = DrivingEnv(routes="training", kinds=("right_curve",), start_along_m=10.0)
+    try:
+        starts = []
+        for seed in range(6):
+            _obs, info = env.reset(seed=seed)
+            starts.append(env._route_s)
+        assert all(0.0 <= s <= 10.5 for s in starts) and len({round(s, 3) for s in starts}) > 1
+        assert env.route.pose_at(0.0)[:2] == pytest.approx(env.route.points[0])
+    finally:
+        env.close()
+    with pytest.raises(BrlInputError, match="start_along_m"):
+        TrainConfig(start_along_m=-1.0)

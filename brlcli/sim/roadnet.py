@@ -372,6 +372,15 @@ class Route:
         dx, dy = self.points[k + 1] - self.points[k]
         return float(np.arctan2(dy, dx))
 
+    def pose_at(self, s_m: float) -> tuple[float, float, float]:
+        """The pose (x_m, y_m, yaw_deg) on the route at arc length `s_m`, clamped to the route."""
+        s_m = min(max(float(s_m), 0.0), self.length_m)
+        k = int(np.clip(np.searchsorted(self.cum_s, s_m, side="right") - 1, 0, len(self.points) - 2))
+        seg = self.cum_s[k + 1] - self.cum_s[k]
+        t = (s_m - self.cum_s[k]) / seg if seg > 0 else 0.0
+        x, y = self.points[k] + t * (self.points[k + 1] - self.points[k])
+        return float(x), float(y), float(np.degrees(self.heading_at(s_m)))
+
     def project(self, x_m: float, y_m: float) -> tuple[float, float]:
         """Arc length along the route (m) of the nearest point to (x, y), and the signed lateral offset (m, + right)."""
         a, b = self.points[:-1], self.points[1:]
