@@ -164,8 +164,8 @@ class BRLPolicy(StatePolicy):
     command-conditioned model (task navigation) acts with the branch of the route command."""
 
     def __init__(self, name: str, model: str, deploy: str = "gt", segnet: str | None = None) -> None:
-        from brlcli.agent import BayesianAgent
         from brlcli.agent.command import is_command_model, load_navigation_agent
+        from brlcli.agent.committee import load_lane_keeping_agent
 
         check_input_source(deploy)
         self.task = model_task(Path(model))
@@ -173,7 +173,7 @@ class BRLPolicy(StatePolicy):
         if command != (self.task == "navigation"):
             raise BrlInputError(f"model {model} is {'' if command else 'not '}command-conditioned but its "
                                 f"config.json says task {self.task}")
-        self.agent = load_navigation_agent(model) if command else BayesianAgent.load(model)
+        self.agent = load_navigation_agent(model) if command else load_lane_keeping_agent(model)
         if self.agent.state_dim == STATE_DIM and self.agent.n_actions == len(ACTIONS) - 1:
             raise BrlInputError(f"model {model} has no backward primitive: "
                                 f"{retired_message('no_backward', RETIRED_CONFIG['no_backward'])}")

@@ -23,6 +23,8 @@ class Retired:
 
     off: Any
     study: str
+    commit: str = RETIRED_AT
+    """A commit whose brl has the knob."""
 
 
 RETIRED_CONFIG: dict[str, Retired] = {
@@ -37,6 +39,7 @@ RETIRED_CONFIG: dict[str, Retired] = {
     "restart_offroad_above": Retired(None, "docs/lane-keeping-study.md, row 35"),
     "keep_best": Retired(False, "docs/navigation-study.md section 4, rows 10 and 12"),
     "command_bootstrap": Retired("next-branch", "docs/navigation-study.md section 3, rows 1-7 (own-branch)"),
+    "start_along_m": Retired(0.0, "docs/lane-keeping-study.md, issue 34 rows 42-43", "e446df6"),
 }
 """Retired keys of the training configuration (`brl train`, `brl sweep` grids)."""
 
@@ -51,7 +54,7 @@ RETIRED_PARAMS: dict[str, Retired] = {
 def retired_message(key: str, knob: Retired) -> str:
     """The one line for a retired key: what it was, where its figures are, the commit that reruns it."""
     return (f"'{key}' was retired in brl 0.2 (measured as not helping: {knob.study}); to rerun it, use the brl of "
-            f"commit {RETIRED_AT} (git checkout {RETIRED_AT})")
+            f"commit {knob.commit} (git checkout {knob.commit})")
 
 
 def refuse_retired(layer: dict[str, Any], table: dict[str, Retired], prefix: str = "") -> None:

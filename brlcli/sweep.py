@@ -49,7 +49,7 @@ from brlcli.train import check_run_dir, run_dir_for
 from brlcli.trainconfig import OPEN, TrainConfig, resolve_train_config
 
 SWEEP_FILE = "sweep.json"
-ROUTE_SETS = ("validation", "paper")
+ROUTE_SETS = ("validation_starts", "validation", "paper")
 """Route sets a sweep evaluates on: `brl bench` suites (validation: model selection; paper: the test routes)."""
 RESERVED_KEYS = {"seed": "seeds come from --seeds", "evaluate": "a sweep evaluates every model with the bench"}
 """Training config keys a variant may not set."""

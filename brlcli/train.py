@@ -296,13 +296,8 @@ def _summary(run: Run, wall_s: float) -> dict[str, Any]:
         summary["branch_restarts"] = stats.branch_restarts
     if cfg.task == "navigation":
         summary["components_per_branch"] = dict(zip(BRANCH_NAMES, agent.components_per_branch, strict=True))
-        if cfg.evaluate:
-            summary["eval"] = evaluate_navigation(agent, cfg)
-    elif cfg.evaluate:
-        from brlcli.evaluate import evaluate_lane_keeping
-
-        summary["eval"] = evaluate_lane_keeping(deployable(agent), town=cfg.town, weather=cfg.weather,
-                                                labeler=labeler(cfg), camera=cfg.camera(), routes="validation")
+    if cfg.evaluate:
+        summary["eval"] = evaluate_greedy(deployable(agent), cfg)
     return summary
 
 
@@ -573,8 +568,7 @@ def make_env(cfg: TrainConfig) -> DrivingEnv:
                       camera=cfg.camera(), offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
                       start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end,
                       route_reward=cfg.route_reward(), junction_weight=cfg.junction_weight if nav else None,
-                      junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None,
-                      start_along_m=cfg.start_along_m)
+                      junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None)
 
 
 def greedy_policy(model: Any, task: str, setting: str, labels: Callable[[np.ndarray], np.ndarray] | None,
@@ -587,35 +581,46 @@ def greedy_policy(model: Any, task: str, setting: str, labels: Callable[[np.ndar
     return StatePolicy("brl", setting, greedy_brl(model), labels, camera)
 
 
-def evaluate_navigation(model: Any, cfg: TrainConfig) -> dict[str, Any]:
-    """Greedy success, collision-free and Either shares on the navigation validation suite (nav_validation)."""
+EVALUATION_SUITES = {"lane-keeping": "validation_starts", "navigation": "nav_validation"}
+"""The suite a task's end-of-run greedy evaluation drives (chosen on, never reported): lane keeping's validation
+routes of both towns from six start poses, navigation's planner routes."""
+
+
+def evaluate_greedy(model: Any, cfg: TrainConfig) -> dict[str, Any]:
+    """Greedy success, collision-free and Either shares and the Score on the task's evaluation suite; lane keeping's
+    in the run's own weather (ground-truth labels do not depend on it; `brl bench --suite validation_starts` drives
+    all three)."""
     from brlcli.bench.runner import SuiteEvaluator
     from brlcli.settings import setting_name
 
-    evaluator = SuiteEvaluator("nav_validation")
+    suite = EVALUATION_SUITES[cfg.task]
+    weathers = str(cfg.weather) if suite == "validation_starts" else None
+    evaluator = SuiteEvaluator(suite, weathers=weathers)
     try:
-        policy = greedy_policy(model, "navigation", setting_name(cfg.input, cfg.input, cfg.variant), labeler(cfg),
+        policy = greedy_policy(model, cfg.task, setting_name(cfg.input, cfg.input, cfg.variant), labeler(cfg),
                                cfg.camera())
         figures = evaluator.evaluate(policy)
     finally:
         evaluator.close()
-    return {"suite": "nav_validation", "success_rate": figures["success"],
-            "collision_free_rate": figures["collision_free"], "either_share": figures["either"],
-            "score": figures["score"], "episodes": figures["episodes"]}
+    return {"suite": suite, "success_rate": figures["success"], "collision_free_rate": figures["collision_free"],
+            "either_share": figures["either"], "score": figures["score"], "episodes": figures["episodes"]}
 
 
 def _train_committee(cfg: TrainConfig, run_dir: Path, resume: bool,
                      progress: Callable[[Progress], None] | None) -> dict[str, Any]:
     """Train (or resume, or read) each member's run in run_dir/member_<k>, then write the committee's model.npz and
-    summary.json (its nav_validation figures are the committee's, voting)."""
+    summary.json (its evaluation figures are the committee's, voting)."""
     from brlcli.agent.command import CommitteeAgent
+    from brlcli.agent.committee import LaneKeepingCommittee
 
     members = []
     for k in range(cfg.committee):
         sub = run_dir / f"member_{k}"
         members.append(train_run(cfg.member_config(k), sub, resume=resume or (sub / "summary.json").exists(),
                                  progress=progress)["summary"])
-    agent = CommitteeAgent([CommandAgent.load(run_dir / f"member_{k}" / "model.npz") for k in range(cfg.committee)])
+    paths = [run_dir / f"member_{k}" / "model.npz" for k in range(cfg.committee)]
+    agent: Any = (CommitteeAgent([CommandAgent.load(p) for p in paths]) if cfg.task == "navigation"
+                  else LaneKeepingCommittee([BayesianAgent.load(p) for p in paths]))
     agent.save(run_dir / "model.npz")
     wall = sum(m["wall_s"] for m in members)
     summary: dict[str, Any] = {
@@ -625,12 +630,13 @@ def _train_committee(cfg: TrainConfig, run_dir: Path, resume: bool,
         "mean_reward": float(np.mean([m["mean_reward"] for m in members])),
         "components": agent.total_components, "wall_s": wall, "steps_per_s": sum(m["steps"] for m in members) / wall,
         "members": [{"member": k, **{key: m[key] for key in ("steps", "mean_reward", "wall_s") if key in m},
-                     "branch_restarts": len(m.get("branch_restarts", [])),
-                     **({"eval_success_rate": m["eval"]["success_rate"]} if "eval" in m else {})}
+                     "branch_restarts": len(m.get("branch_restarts", [])), "restarts": m.get("restarts", []),
+                     **({"eval_success_rate": m["eval"]["success_rate"], "eval_score": m["eval"]["score"]}
+                        if "eval" in m else {})}
                     for k, m in enumerate(members)],
     }
     if cfg.evaluate:
-        summary["eval"] = evaluate_navigation(agent, cfg)
+        summary["eval"] = evaluate_greedy(agent, cfg)
     record = {**provenance(cfg.to_dict()), "summary": summary}
     atomic_write_json(run_dir / "summary.json", record)
     return record

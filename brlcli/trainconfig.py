@@ -26,6 +26,8 @@ VARIANT_PRESETS: dict[str, dict[str, Any]] = {
     "reference-code": {},
     "averaging-restart": {"params": {"step_size": "visits"}, "restart_below": -7.0, "max_restarts": 2},
     "action-averaging-restart": {"params": {"step_size": "action-visits"}, "restart_below": -7.0, "max_restarts": 2},
+    "action-averaging-committee": {"params": {"step_size": "action-visits"}, "restart_below": -7.0, "max_restarts": 2,
+                                   "committee": 5},
 }
 """Named methods: the overrides of `TrainConfig()` each one stands for (a `--set` or `--config` goes on top).
 `paper`: eqs. 1-11, Algorithm 1 and Table I as written, with the lane-keeping study's open choices (the TrainConfig
@@ -37,22 +39,26 @@ fresh agent when training is trapped (mean reward per step below -7 over the las
 of an attempt; at most two restarts, none after step 4,500 of the run, so at most 9,000 learning steps).
 `action-averaging-restart` (outside the paper; rounds 11-12): `averaging-restart` with a per-action step size in eq. 8
 (each Q[a, m] averages its own TD targets: `params.step_size = "action-visits"`), which removes the chattering of
-equal action values that traps runs; the restart stays as a safety net (it fires on one of eighteen seeds)."""
-DEFAULT_VARIANT = "action-averaging-restart"
-"""The variant `brl train` uses when none is named: the recommended one, which beats `paper` on the validation routes
-by more than the standard error of the difference (docs/lane-keeping-study.md, round 11)."""
+equal action values that traps runs; the restart stays as a safety net (it fires on one of eighteen seeds).
+`action-averaging-committee` (outside the paper; issue 34): five `action-averaging-restart` agents trained apart
+(members 0-4 of the seed) that drive by majority vote, so that a run's own wrong greedy action at a curve is
+outvoted (docs/lane-keeping-study.md, issue 34)."""
+DEFAULT_VARIANT = "action-averaging-committee"
+"""The variant `brl train` uses when none is named: the recommended one, chosen on the validation routes from six
+start poses on seeds 0-17 (docs/lane-keeping-study.md, issue 34)."""
 
 TASK_PRESETS: dict[str, dict[str, Any]] = {
     "lane-keeping": {},
     "navigation": {"steps": 27000, "restart_below": None, "params": {"new_q": "nearest"},
-                   "branch_restart_below": [-5.0, -9.0, -9.0, -9.0]},
+                   "branch_restart_below": [-5.0, -9.0, -9.0, -9.0], "committee": 1},
 }
 """Overrides a task makes on top of the variant's preset (an option, --config or --set goes on top), chosen on the
 nav_validation suite (docs/navigation-study.md): navigation trains four branches, two thirds of the episodes at
 junctions, so six times the paper's t_max; without the trap restart, whose reward threshold is the lane-keeping
 task's; a new component starts from its nearest component's action values (`new_q = "nearest"`) rather than the
 optimistic constant, which otherwise makes an untried junction state look better than a known one; and a trap
-restart per branch (follow -5, turns -9), which restarts only a trapped branch."""
+restart per branch (follow -5, turns -9), which restarts only a trapped branch; single models unless
+`--set committee=K` (a lane-keeping method's committee is not the navigation preset's)."""
 
 DEFAULT_AGENT_OVERRIDES: dict[str, Any] = {"init_scatter": 1e-3}
 """Agent parameters a training run sets beyond `BRLParams()` (none of them is in the paper's Table I): the NIW
@@ -88,7 +94,6 @@ class TrainConfig:
     start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m ...
     start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
     otherlane_end: float | None = None  # end a training episode when the share in the opposite lane exceeds it
-    start_along_m: float = 0.0  # training episodes start ~ U(0, c) m along their route (a shorter approach)
     restart_below: float | None = None  # outside the paper: restart learning (a fresh agent) when the mean reward
     # per step over the last RESTART_WINDOW of steps is below this at RESTART_CHECKS of an attempt (None: never)
     max_restarts: int = 2  # at most this many restarts, and none that would take a run past 2 x steps; the last
@@ -102,8 +107,8 @@ class TrainConfig:
     junction_weight: float = 2.0  # navigation only: a junction kind's probability relative to a lane-keeping kind
     junction_approaches_m: list[float] = field(default_factory=lambda: [25.0, 60.0])  # navigation only: where the
     # junction routes start before their junction (m)
-    committee: int = 1  # navigation only, outside the paper: K > 1 trains K command-conditioned agents apart (members
-    # 0..K-1, each the whole run's steps, in member_<k>/) and ships them as one model that acts by majority vote
+    committee: int = 1  # outside the paper: K > 1 trains K agents apart (members 0..K-1, each the whole run's steps,
+    # in member_<k>/) and ships them as one model that acts by majority vote
     member: int = 0  # which committee member a run is: member 0 is the seed's own run, member k > 0 draws its
     # generators from (seed, k) as well
 
@@ -121,8 +126,8 @@ class TrainConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "committee" else 0):
                 raise BrlInputError(f"{name} must be an integer >= {1 if name == 'committee' else 0}, got {value!r}")
-        if self.committee > 1 and (self.task != "navigation" or self.curve_every or self.member):
-            raise BrlInputError("committee needs --task navigation and cannot be combined with --curve-every")
+        if self.committee > 1 and (self.curve_every or self.member):
+            raise BrlInputError("committee cannot be combined with --curve-every (evaluate the members' own runs)")
         if not (self.junction_weight > 0 and self.junction_approaches_m
                 and all(isinstance(a, int | float) and a > 0 for a in self.junction_approaches_m)):
             raise BrlInputError("junction_weight must be > 0 and junction_approaches_m a non-empty list of distances "
@@ -141,8 +146,6 @@ class TrainConfig:
             raise BrlInputError("--curve-every must be >= 0")
         if self.max_restarts < 0:
             raise BrlInputError("max_restarts must be >= 0")
-        if not self.start_along_m >= 0:
-            raise BrlInputError(f"start_along_m must be >= 0 (m), got {self.start_along_m}")
         try:
             self.reward_params()
             self.route_reward()

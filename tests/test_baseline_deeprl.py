@@ -139,7 +139,7 @@ def test_learning_curve_written_during_training(tmp_path: Path, monkeypatch) -> 
     import brlcli.bench.runner as curve
 
     two = build_suite("paper", weathers="1")[:2]
-    monkeypatch.setattr(curve, "build_suite", lambda suite: two)
+    monkeypatch.setattr(curve, "build_suite", lambda suite, weathers=None: two)
     out = tmp_path / "c"
     train_deep_rl(DeepRLConfig(**{**TINY, "eval_suite": "paper"}), out, evaluator=curve.SuiteEvaluator("paper"))
     rows = read_curve(out / CURVE_FILE)
@@ -217,7 +217,7 @@ def test_navigation_dqn_sees_the_command_and_curves_on_nav_validation(tmp_path: 
     finally:
         env.close()
     one = build_suite("nav_validation")[:1]
-    monkeypatch.setattr(curve, "build_suite", lambda suite: one)
+    monkeypatch.setattr(curve, "build_suite", lambda suite, weathers=None: one)
     train_deep_rl(cfg, tmp_path / "nav", evaluator=curve.SuiteEvaluator(cfg.evaluation_suite))
     rows = read_curve(tmp_path / "nav" / CURVE_FILE)
     assert [r["eval_suite"] for r in rows] == ["nav_validation", "nav_validation"]

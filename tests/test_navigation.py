@@ -257,7 +257,7 @@ def test_a_committee_trains_its_members_apart_and_drives_by_vote(tmp_path: Path)
     with pytest.raises(ValueError, match="greedily"):
         agent.act(np.full(30, 1 / 30), 2, rng)
     with pytest.raises(BrlInputError, match="committee"):
-        TrainConfig(committee=2)
+        TrainConfig(committee=2, curve_every=100)
     with pytest.raises(BrlInputError, match="committee"):
         TrainConfig(task="navigation", committee=0)
     with pytest.raises(BrlInputError, match="not a command-conditioned one"):  # a single agent's loader refuses it

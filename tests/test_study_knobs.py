@@ -93,16 +93,14 @@ def test_configs_written_before_the_study_keep_brl_0_1_choices() -> None:
     assert TrainConfig.from_dict(new.to_dict()) == new
 
 
-def test_start_along_shortens_the_approach_within_its_bound() -> None:
-    env = DrivingEnv(routes="training", kinds=("right_curve",), start_along_m=10.0)
+def test_route_pose_at_walks_the_route() -> None:
+    env = DrivingEnv(routes="training", kinds=("right_curve",))
     try:
-        starts = []
-        for seed in range(6):
-            _obs, info = env.reset(seed=seed)
-            starts.append(env._route_s)
-        assert all(0.0 <= s <= 10.5 for s in starts) and len({round(s, 3) for s in starts}) > 1
-        assert env.route.pose_at(0.0)[:2] == pytest.approx(env.route.points[0])
+        env.reset(seed=0)
+        route = env.route
+        assert route.pose_at(0.0)[:2] == pytest.approx(route.points[0])
+        x, y, _yaw = route.pose_at(route.length_m / 2)
+        assert route.project(x, y)[0] == pytest.approx(route.length_m / 2, abs=1e-6)
+        assert route.pose_at(1e9)[:2] == pytest.approx(route.points[-1])
     finally:
         env.close()
-    with pytest.raises(BrlInputError, match="start_along_m"):
-        TrainConfig(start_along_m=-1.0)

@@ -124,8 +124,10 @@ def test_cli_trains_and_refuses_to_overwrite(tmp_path: Path) -> None:
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "seed_0" / "summary.json").read_text())["summary"]
-    assert summary["final_attempt_steps"] == 30  # the default variant restarts when trapped: 30 steps in the last
-    assert summary["steps"] == 30 + sum(r["attempt_steps"] for r in summary["restarts"])
+    assert summary["committee"] == 5 and len(summary["members"]) == 5  # the default: a committee of five
+    member = json.loads((tmp_path / "seed_0" / "member_0" / "summary.json").read_text())["summary"]
+    assert member["final_attempt_steps"] == 30  # each member restarts when trapped: 30 steps in its last attempt
+    assert member["steps"] == 30 + sum(r["attempt_steps"] for r in member["restarts"])
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert again.returncode == 2 and "--resume" in again.stderr
 
@@ -164,7 +166,7 @@ def test_learning_curve_evaluations_do_not_change_training(tmp_path: Path, monke
     from brlcli.curve import read_curve
 
     two = build_suite("paper", weathers="1")[:2]
-    monkeypatch.setattr(curve, "build_suite", lambda suite: two)
+    monkeypatch.setattr(curve, "build_suite", lambda suite, weathers=None: two)
     train_run(TrainConfig(steps=60, seed=2, evaluate=False), tmp_path / "plain")
     train_run(TrainConfig(steps=60, seed=2, evaluate=False, curve_every=30), tmp_path / "curve")
     assert _files(tmp_path / "plain") == _files(tmp_path / "curve")
@@ -183,7 +185,13 @@ def test_train_summary_line_reports_either_and_score_beside_success() -> None:
     line = train_summary_line(s)
     assert "lane-keeping success 100%  Either 62.7%  Score 0.79 (town01 validation routes)" in line
     assert "Either" not in train_summary_line({**s, "eval": None})
-    assert "(2 restarts)" in train_summary_line({**s, "restarts": [{}, {}]}) and "restart" not in line
+    restarts = [{"step": 1502, "mean_reward": -9.41}, {"step": 3010, "mean_reward": -7.5}]
+    assert ("(2 restarts, trapped: -9.4 per step over the window at step 1,502; -7.5 per step over the window at "
+            "step 3,010)") in train_summary_line({**s, "restarts": restarts}) and "restart" not in line
+    committee = {**s, "committee": 5, "members": [{"restarts": []}, {"restarts": [{}]}], "eval": {
+        "suite": "validation_starts", "success_rate": 0.99, "either_share": 0.01, "score": 0.99}}
+    assert ("(a committee of 5 members, majority vote; 1 member restarted when trapped), lane-keeping success 99%  "
+            "Either 1.0%  Score 0.99 (validation_starts suite)") in train_summary_line(committee)
 
 
 def test_restarts_on_a_trap_and_resumes_bit_identical(tmp_path: Path) -> None:
@@ -234,3 +242,43 @@ def test_trap_test_reads_the_reward_at_its_checks_only() -> None:
     assert not hook.trapped(run(30, [-9.0] * 15, attempt=2))  # max_restarts reached
     r = run(30, [-4.0] * 15)
     assert not hook.trapped(r) and r.stats.checks_done == 1 and not hook.trapped(r)  # one test per check
+
+
+def test_a_lane_keeping_committee_votes_and_benches(tmp_path: Path) -> None:
+    """committee=K for lane keeping: K paper agents trained apart (member 0 the seed's own run), one model that drives
+    by majority vote, read by the bench like any lane-keeping model."""
+    from brlcli.agent.committee import LaneKeepingCommittee, load_lane_keeping_agent
+    from brlcli.policy import BRLPolicy
+
+    cfg = TrainConfig(steps=60, seed=2, evaluate=False, committee=3)
+    summary = train_run(cfg, tmp_path / "com")["summary"]
+    assert summary["committee"] == 3 and summary["steps"] == 180 and len(summary["members"]) == 3
+    train_run(TrainConfig(steps=60, seed=2, evaluate=False), tmp_path / "plain")
+    assert (tmp_path / "com" / "member_0" / "log.csv").read_bytes() == (tmp_path / "plain" / "log.csv").read_bytes()
+    agent = load_lane_keeping_agent(tmp_path / "com" / "model.npz")
+    assert isinstance(agent, LaneKeepingCommittee) and len(agent.members) == 3
+    members = [BayesianAgent.load(tmp_path / "com" / f"member_{k}" / "model.npz") for k in range(3)]
+    policy = BRLPolicy("c", str(tmp_path / "com" / "model.npz"))
+    rng = np.random.default_rng(0)
+    for s in rng.dirichlet(np.ones(30), size=20):
+        probs = np.array([m.action_probabilities(s) for m in members])
+        votes = np.bincount(probs.argmax(1), minlength=4)
+        assert policy.act(s) == int(np.argmax(np.where(votes == votes.max(), probs.mean(0), -np.inf)))
+    with pytest.raises(ValueError, match="greedily"):
+        agent.act(np.full(30, 1 / 30), rng)
+    from brlcli.agent.command import CommandAgent
+
+    CommandAgent().save(tmp_path / "nav.npz")
+    with pytest.raises(BrlInputError, match="not a lane-keeping one"):
+        load_lane_keeping_agent(tmp_path / "nav.npz")
+
+
+def test_validation_starts_drive_each_validation_route_from_six_poses_none_of_the_paper_suite() -> None:
+    from brlcli.bench.suites import START_VARIANTS, build_suite
+
+    starts = build_suite("validation_starts", weathers="1")
+    plain = build_suite("validation", weathers="1")
+    assert len(starts) == len(START_VARIANTS) * len(plain) and len({s.id for s in starts}) == len(starts)
+    assert {s.start for s in plain} <= {s.start for s in starts}
+    paper = {tuple(round(v, 1) for v in s.start) for s in build_suite("paper")}
+    assert not paper & {tuple(round(v, 1) for v in s.start) for s in starts}

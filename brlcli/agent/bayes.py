@@ -627,6 +627,18 @@ def open_model_npz(path: str) -> Any:
     return npz
 
 
+class Prefixed:
+    """The entries of an open .npz under a key prefix, with the `files` / `[]` interface `_from_npz` reads."""
+
+    def __init__(self, npz: Any, prefix: str) -> None:
+        self._npz = npz
+        self._prefix = prefix
+        self.files = [k[len(prefix):] for k in npz.files if k.startswith(prefix)]
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return self._npz[self._prefix + key]
+
+
 def _one_line(exc: BaseException) -> str:
     """First line of an exception message (or its type name when empty)."""
     text = str(exc).strip().splitlines()

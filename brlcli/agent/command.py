@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from brlcli.agent.bayes import BayesianAgent, LearnStep, _one_line, open_model_npz, save_model_arrays
+from brlcli.agent.bayes import BayesianAgent, LearnStep, Prefixed, _one_line, open_model_npz, save_model_arrays
+from brlcli.agent.committee import majority_vote
 from brlcli.agent.params import BRLParams
 from brlcli.errors import BrlInputError
 from brlcli.retired import RETIRED_CONFIG, retired_message
@@ -147,7 +148,7 @@ class CommandAgent:
                                 f"{COMMAND_FORMAT_VERSION}")
         if names != list(BRANCH_NAMES):
             raise BrlInputError(f"model file {path} has branches {names}, expected {list(BRANCH_NAMES)}")
-        branches = [BayesianAgent._from_npz(_Prefixed(npz, f"{name}."), f"{path} (branch {name})") for name in names]
+        branches = [BayesianAgent._from_npz(Prefixed(npz, f"{name}."), f"{path} (branch {name})") for name in names]
         if len({(b.state_dim, b.n_actions) for b in branches}) != 1:
             raise BrlInputError(f"model file {path} has branches of different state sizes or action counts")
         return cls.from_branches(branches)
@@ -156,14 +157,6 @@ class CommandAgent:
 COMMITTEE_KIND = "command-committee"
 COMMITTEE_FORMAT_VERSION = 1
 """Version of a committee model file."""
-
-
-def majority_vote(probabilities: np.ndarray) -> int:
-    """The action most members choose greedily, given each member's p(a|s) as rows (K, |A|); a tie goes to the
-    tied action with the highest mean p(a|s), then to the lowest index."""
-    probabilities = np.asarray(probabilities, dtype=float)
-    counts = np.bincount(probabilities.argmax(axis=1), minlength=probabilities.shape[1])
-    return int(np.argmax(np.where(counts == counts.max(), probabilities.mean(axis=0), -np.inf)))
 
 
 class CommitteeAgent:
@@ -222,7 +215,7 @@ class CommitteeAgent:
         if version != COMMITTEE_FORMAT_VERSION or n < 2:
             raise BrlInputError(f"model file {path} is a committee of format version {version} with {n} members; "
                                 f"this brl reads version {COMMITTEE_FORMAT_VERSION} with at least two")
-        members = [CommandAgent._from_npz(_Prefixed(npz, f"member{k}."), f"{path} (member {k})") for k in range(n)]
+        members = [CommandAgent._from_npz(Prefixed(npz, f"member{k}."), f"{path} (member {k})") for k in range(n)]
         try:
             return cls(members)
         except ValueError as exc:
@@ -240,22 +233,11 @@ def load_navigation_agent(path: str | os.PathLike[str]) -> CommandAgent | Commit
         return CommandAgent._from_npz(npz, path)
 
 
-class _Prefixed:
-    """The entries of an open .npz under a key prefix, with the `files` / `[]` interface `_from_npz` reads."""
-
-    def __init__(self, npz: Any, prefix: str) -> None:
-        self._npz = npz
-        self._prefix = prefix
-        self.files = [k[len(prefix):] for k in npz.files if k.startswith(prefix)]
-
-    def __getitem__(self, key: str) -> np.ndarray:
-        return self._npz[self._prefix + key]
-
-
 def is_command_model(path: str | os.PathLike[str]) -> bool:
-    """Whether a model file holds a command-conditioned agent (False for lane-keeping models and unreadable files)."""
+    """Whether a model file holds a command-conditioned agent or a committee of them (False for lane-keeping models,
+    lane-keeping committees and unreadable files)."""
     try:
         with np.load(os.fspath(path), allow_pickle=False) as npz:
-            return "kind" in npz.files
+            return "kind" in npz.files and str(npz["kind"]) in (COMMAND_KIND, COMMITTEE_KIND)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, AttributeError, TypeError):
         return False

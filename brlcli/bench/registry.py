@@ -18,7 +18,7 @@ AGENTS = ("brl", "autopilot", "oracle", "mp", "il", "dqn")
 agent's action primitives and decision rate; mp: modular pipeline; il: conditional imitation learning; dqn: deep RL
 (Stable-Baselines3 DQN)."""
 
-COMMANDLESS_SUITES = ("paper", "validation")
+COMMANDLESS_SUITES = ("paper", "validation", "validation_starts")
 """Bench suites whose routes hold no junction, so no route command: a navigation model is not benched on them."""
 
 

@@ -221,9 +221,9 @@ def suite_version(suite: str) -> int:
 class SuiteEvaluator:
     """Runs a policy on a suite's episodes (worlds kept between calls); returns the paper's table figures."""
 
-    def __init__(self, suite: str = "paper", bench_seed: int = 0) -> None:
+    def __init__(self, suite: str = "paper", bench_seed: int = 0, weathers: str | None = None) -> None:
         self.suite = suite
-        self.specs: list[EpisodeSpec] = build_suite(suite)
+        self.specs: list[EpisodeSpec] = build_suite(suite, weathers=weathers)
         self.bench_seed = bench_seed
         self._worlds: dict[tuple, World] = {}
 

@@ -14,15 +14,22 @@ from brlcli.sim.town import load_town
 from brlcli.sim.traffic import CORL_TRAFFIC
 from brlcli.sim.weather import TEST_WEATHERS, TRAIN_WEATHERS, get_weather
 
-SUITES = ("paper", "validation", "corl2017", "nocrash", "nav_validation")
-SUITE_VERSION = {"paper": 1, "validation": 1, "corl2017": 2, "nocrash": 2, "nav_validation": 2}
+SUITES = ("paper", "validation", "validation_starts", "corl2017", "nocrash", "nav_validation")
+SUITE_VERSION = {"paper": 1, "validation": 1, "validation_starts": 1, "corl2017": 2, "nocrash": 2,
+                 "nav_validation": 2}
 NAV_VALIDATION_ROUTES = 8
 """Planner routes per town in the navigation validation suite (`brlcli.sim.navroutes.validation_routes`)."""
 NAV_VALIDATION_CONDITIONS = {"training": ("town01", (1,)), "new_town_weather": ("town02", (14,))}
 """The navigation validation suite (issue 20; what navigation models are chosen on, never CoRL2017's poses): 8
 planner routes in town01 in the training weather and 8 in town02 in a test weather, no traffic."""
 #: Lane-keeping suites: suite -> the town route set it drives (same towns, weathers and metrics as the paper's).
-LANE_KEEPING_SUITES = {"paper": "lane_keeping", "validation": "validation"}
+LANE_KEEPING_SUITES = {"paper": "lane_keeping", "validation": "validation", "validation_starts": "validation"}
+START_VARIANTS: tuple[tuple[float, float], ...] = ((0.0, 0.0), (5.0, 0.0), (0.0, -0.6), (0.0, 0.6), (5.0, -0.6),
+                                                  (5.0, 0.6))
+"""`validation_starts` (issue 34): each validation route from six start poses, (metres along the route, metres to
+the side of the lane centre): the route's own start, 5 m further along it (for a curve, a 10-m approach instead of
+15 m), and each of these 0.6 m to either side. None of them is a start pose of the paper suite (whose curves start
+20 m before the same corners)."""
 PAPER_TOWNS = ("town02", "town01")
 PAPER_WEATHERS = (1, 4, 14)
 CORL_TASKS = ("straight", "one_curve", "navigation", "navigation_dynamic")
@@ -66,8 +73,10 @@ def _parse_list(text: str | None, allowed: tuple[str, ...], what: str) -> tuple[
 def paper_suite(weathers: tuple[int, ...] | None = None, towns: tuple[str, ...] | None = None,
                 suite: str = "paper") -> list[EpisodeSpec]:
     """The paper's lane-keeping test routes (straight, right and left curve) in both towns and three weathers;
-    `suite="validation"` drives the towns' validation routes instead (same towns, weathers and metrics)."""
+    `suite="validation"` drives the towns' validation routes instead (same towns, weathers and metrics), and
+    `suite="validation_starts"` each of them from the START_VARIANTS poses."""
     specs = []
+    starts = START_VARIANTS if suite == "validation_starts" else ((0.0, 0.0),)
     for town_name in towns or PAPER_TOWNS:
         town = load_town(town_name)
         net = RoadNetwork(town)
@@ -75,10 +84,22 @@ def paper_suite(weathers: tuple[int, ...] | None = None, towns: tuple[str, ...] 
         routes = town.route_set(LANE_KEEPING_SUITES[suite])
         for w in weathers or PAPER_WEATHERS:
             for i, r in enumerate(routes):
-                length = net.route(r.start, r.goal).length_m
-                specs.append(EpisodeSpec(suite, condition, r.kind, town.name, int(w), i, r.start, r.goal,
-                                         round(length, 3), route_timeout_s(length)))
+                for v, (along_m, side_m) in enumerate(starts):
+                    start = _start_variant(net, r.start, r.goal, along_m, side_m)
+                    length = net.route(start, r.goal).length_m
+                    specs.append(EpisodeSpec(suite, condition, r.kind, town.name, int(w), i * len(starts) + v, start,
+                                             r.goal, round(length, 3), route_timeout_s(length)))
     return specs
+
+
+def _start_variant(net: RoadNetwork, start: tuple[float, float, float], goal: tuple[float, float, float],
+                   along_m: float, side_m: float) -> tuple[float, float, float]:
+    """A start pose `along_m` metres along the route from `start` to `goal` and `side_m` metres to its side."""
+    if along_m == 0.0 and side_m == 0.0:
+        return start
+    x, y, yaw = net.route(start, goal).pose_at(along_m) if along_m else start
+    rad = np.radians(yaw)
+    return (round(x - side_m * np.sin(rad), 3), round(y + side_m * np.cos(rad), 3), round(yaw, 3))
 
 
 def corl_suite(conditions: tuple[str, ...] | None = None, tasks: tuple[str, ...] | None = None,

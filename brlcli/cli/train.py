@@ -27,10 +27,10 @@ from brlcli.cli.common import (
     stderr_console,
 )
 
-VARIANT_HELP = ("Method: action-averaging-restart (recommended, outside the paper: each action value the average "
-                "of its TD targets, and a restart when training is trapped), paper (eqs. 1-11, Algorithm 1, Table I "
-                "as written), averaging-restart (the previous recommendation: per-component averaging), "
-                "reference-code (the authors' code's agent).")
+VARIANT_HELP = ("Method: action-averaging-committee (recommended, outside the paper: five agents trained apart that "
+                "vote, each with its action values the averages of their TD targets and a restart when trapped), "
+                "action-averaging-restart (one such agent), paper (eqs. 1-11, Algorithm 1, Table I as written), "
+                "averaging-restart (per-component averaging), reference-code (the authors' code's agent).")
 
 
 @app.command()
@@ -50,7 +50,7 @@ def train(
     ray_address: RayAddress = None,
     out: Annotated[str | None, out_option("train", "one seed_N/ per model")] = None,
     resume: Resume = False,
-    variant: Annotated[str, typer.Option(help=VARIANT_HELP)] = "action-averaging-restart",
+    variant: Annotated[str, typer.Option(help=VARIANT_HELP)] = "action-averaging-committee",
     target_speed_kmh: Annotated[float, typer.Option(help="Reward's target speed v_t, km/h.")] = 20.0,
     evaluate: Annotated[bool, typer.Option(help="Greedy evaluation on the task's validation routes at the end.")]
     = True,
@@ -118,16 +118,20 @@ def train_summary_line(s: dict) -> str:
     line = (f"seed {s['seed']}: {s['steps']} steps, {s['episodes']} episodes, {s['components']} components, "
             f"{s['steps_per_s']:.0f} steps/s")
     if s.get("committee"):
-        line += f" (a committee of {s['committee']} members, majority vote)"
+        restarted = sum(1 for m in s.get("members", []) if m.get("restarts"))
+        line += (f" (a committee of {s['committee']} members, majority vote"
+                 + (f"; {restarted} member{'s' if restarted > 1 else ''} restarted when trapped" if restarted else "")
+                 + ")")
     if s.get("restarts"):
-        line += f" ({len(s['restarts'])} restart{'s' if len(s['restarts']) > 1 else ''})"
+        why = "; ".join(f"{r['mean_reward']:.1f} per step over the window at step {r['step']:,}"
+                        for r in s["restarts"])
+        line += f" ({len(s['restarts'])} restart{'s' if len(s['restarts']) > 1 else ''}, trapped: {why})"
     ev = s.get("eval")
-    if ev and ev.get("suite") == "nav_validation":
-        line += (f", navigation success {ev['success_rate']:.0%}  Either {ev['either_share']:.1%}  "
-                 f"Score {ev['score']:.2f} (nav_validation suite)")
-    elif ev:
-        line += (f", lane-keeping success {ev['success_rate']:.0%}  Either {ev['either_share']:.1%}  "
-                 f"Score {ev['score']:.2f} ({ev['town']} {ev.get('routes', 'lane_keeping')} routes)")
+    if ev:
+        task = "navigation" if ev.get("suite") == "nav_validation" else "lane-keeping"
+        where = f"{ev['suite']} suite" if "suite" in ev else f"{ev['town']} {ev.get('routes', 'lane_keeping')} routes"
+        line += (f", {task} success {ev['success_rate']:.0%}  Either {ev['either_share']:.1%}  "
+                 f"Score {ev['score']:.2f} ({where})")
     return line
 
 

@@ -22,7 +22,7 @@ from brlcli.report.published import CORL_CONDITIONS
 
 FORMATS: tuple[str, ...] = ("md", "tex", "csv", "html")
 """Output formats: report.md (+ PNGs), tables/*.tex, tables/*.csv, report.html (self-contained)."""
-REPORTED_SUITES: tuple[str, ...] = ("paper", "validation", "corl2017", "nocrash")
+REPORTED_SUITES: tuple[str, ...] = ("paper", "validation", "validation_starts", "corl2017", "nocrash")
 FRAME_KEYS = ("intersection_offroad", "intersection_otherlane")
 
 
@@ -72,7 +72,8 @@ def _paper_section(episodes: list[dict[str, Any]], images: dict[str, Callable[[]
         own_images: dict[str, Callable[[], bytes]] = {}
         own_summary: list[dict[str, Any]] = []
         section = _paper_section(episodes, own_images, notes, own_summary, plots, "paper")
-        section.title = "The paper's test suite on the validation routes (model selection)"
+        section.title = ("The paper's test suite on the validation routes (model selection)" if suite == "validation"
+                         else "The paper's test suite on the validation routes from six start poses (model selection)")
         section.text += (" Validation routes (routes.validation of the towns), not the paper's test routes: published "
                          "rows are the test routes' figures, for orientation only.")
         for table in section.tables:
@@ -189,10 +190,11 @@ def assemble(results: Results, runs: list[TrainingRun], plots: bool, curves: lis
     suites = results.suites()
     if "paper" in suites:
         sections.append(_paper_section(results.of_suite("paper"), images, notes, summary, plots))
-    elif "validation" not in suites:
+    elif "validation" not in suites and "validation_starts" not in suites:
         notes.append("No results of the paper's test suite in the inputs: its table is not reported.")
-    if "validation" in suites:
-        sections.append(_paper_section(results.of_suite("validation"), images, notes, summary, plots, "validation"))
+    for name in ("validation", "validation_starts"):
+        if name in suites:
+            sections.append(_paper_section(results.of_suite(name), images, notes, summary, plots, name))
     if "corl2017" in suites:
         sections.append(_corl_section(results.of_suite("corl2017"), summary))
     else:

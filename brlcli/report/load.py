@@ -30,6 +30,7 @@ SUITE_KEYS: dict[str, tuple[str, ...]] = {
     "nocrash": ("collided",),
 }
 SUITE_KEYS["validation"] = SUITE_KEYS["paper"]  # the paper's suite on other routes
+SUITE_KEYS["validation_starts"] = SUITE_KEYS["paper"]  # and from several start poses
 """Further keys the tables of a suite need."""
 
 CONFLICT_KEYS: tuple[str, ...] = ("seed", "success", "steps", "collided")

@@ -58,8 +58,7 @@ class DrivingEnv(gym.Env):
                  labeler: Callable[[np.ndarray], np.ndarray] | None = None, offroad_end: float | None = None,
                  start_offset_m: float = 0.0, start_yaw_deg: float = 0.0,
                  otherlane_end: float | None = None, route_reward: RouteRewardParams | None = None,
-                 junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None,
-                 start_along_m: float = 0.0) -> None:
+                 junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None) -> None:
         super().__init__()
         try:
             self.check_episode_rules(offroad_end, start_offset_m, start_yaw_deg, otherlane_end)
@@ -69,9 +68,6 @@ class DrivingEnv(gym.Env):
         self.offroad_end = offroad_end  # end the episode when more than this share of the footprint is off-road
         self.start_offset_m = float(start_offset_m)  # start pose: lateral offset ~ U(-a, a) m
         self.start_yaw_deg = float(start_yaw_deg)  # and heading offset ~ U(-b, b) degrees
-        if not start_along_m >= 0:
-            raise BrlInputError(f"start_along_m must be >= 0, got {start_along_m}")
-        self.start_along_m = float(start_along_m)  # and a start ~ U(0, c) m along the route (a shorter approach)
         self.world = World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians, camera=camera)
         if routes == "navigation":
             from brlcli.sim.navroutes import JUNCTION_APPROACHES_M, junction_routes
@@ -136,8 +132,6 @@ class DrivingEnv(gym.Env):
         self.route = self.world.network.route(spec.start, spec.goal)
         self.timeout_s = route_timeout_s(self.route.length_m)
         start = spec.start
-        if self.start_along_m > 0:
-            start = self.route.pose_at(self.np_random.uniform(0.0, min(self.start_along_m, self.route.length_m / 2)))
         if self.start_offset_m > 0 or self.start_yaw_deg > 0:
             lateral, dyaw = self.np_random.uniform(-1.0, 1.0, size=2) * (self.start_offset_m, self.start_yaw_deg)
             yaw = np.radians(start[2])
