@@ -6,7 +6,8 @@ For every model (policy) of the results directories (`brl bench` outputs): succe
 Score (the paper's), and the success per town and route kind (straight, right curve, left curve); then the mean ±
 std (ddof 1), the worst and the best model. With `--against`, the Spearman rank correlation between the models'
 Scores in the first set of directories and in the second (models matched by name), e.g. validation routes against
-the paper suite.
+the paper suite. With `--against-runs`, the same against each run's own end-of-run evaluation Score
+(`summary.json`'s `eval`, e.g. the validation_starts suite), models matched as `RUNS_DIR_NAME/seed_N`.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dirs", type=Path, nargs="+")
     ap.add_argument("--against", type=Path, nargs="*", default=None)
+    ap.add_argument("--against-runs", type=Path, nargs="*", default=None)
     args = ap.parse_args()
     rows = table(read(args.dirs))
     cells = sorted({k for r in rows.values() for k in r if "/" in k})
@@ -74,8 +76,13 @@ def main() -> None:
               for r in rows.values()]
     print(f"curves: {sum(a for a, _ in curves)}/{sum(b for _, b in curves)} "
           f"({sum(a for a, _ in curves) / max(sum(b for _, b in curves), 1):.1%})")
-    if args.against:
-        other = table(read(args.against))
+    other = table(read(args.against)) if args.against else {}
+    for runs in args.against_runs or []:
+        for summary in sorted(runs.glob("seed_*/summary.json")):
+            ev = json.loads(summary.read_text())["summary"].get("eval")
+            if ev:
+                other[f"{runs.name}/{summary.parent.name}"] = {"score": ev["score"]}
+    if other:
         common = [n for n in rows if n in other]
         rho = spearmanr([rows[n]["score"] for n in common], [other[n]["score"] for n in common])
         print(f"Spearman rank correlation of Score over {len(common)} models: {rho.statistic:.3f} "

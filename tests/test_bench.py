@@ -244,8 +244,13 @@ def test_without_a_model_the_shipped_gt_set_is_used() -> None:
 
     found = find_models(None, None)
     assert [name for name, _ in found] == [f"brl_gt/seed_{k}" for k in range(9)]
-    for _, path in found:
-        agent = BayesianAgent.load(path)
+    from brlcli.agent.committee import LaneKeepingCommittee, load_lane_keeping_agent
+
+    te = sorted((Path(__file__).resolve().parents[1] / "models" / "brl_te").glob("seed_*/model.npz"))
+    assert len(te) == 9
+    for path in [p for _, p in found] + te:
+        agent = load_lane_keeping_agent(path)
+        assert isinstance(agent, LaneKeepingCommittee) and len(agent.members) == 5
         assert agent.state_dim == 30 and agent.n_actions == 4
 
 
