@@ -7,7 +7,7 @@ from brlcli.classes import CarlaClass
 from brlcli.sim import Command, RoadNetwork, load_town
 from brlcli.sim.townmap import LANE_ANGLE_STEPS, LANE_NONE, TownMap
 from brlcli.sim.traffic import Traffic
-from brlcli.sim.vehicle import LENGTH_M
+from brlcli.sim.vehicle import LENGTH_M, WIDTH_M
 
 
 @pytest.fixture(scope="module")
@@ -106,3 +106,97 @@ def test_traffic_is_reproducible(town) -> None:
             t.step(0.1, 0.0, 0.0)
         runs.append(t.boxes())
     np.testing.assert_array_equal(runs[0], runs[1])
+
+
+# ---------------------------------------------------------------------------------------------- traffic that behaves
+@pytest.fixture(scope="module", params=[("town01", 100, 250), ("town02", 70, 150)], ids=["town01", "town02"])
+def dense(request) -> dict:
+    """Two simulated minutes of NoCrash Dense traffic, ego far away."""
+    name, n_v, n_p = request.param
+    net = RoadNetwork(load_town(name))
+    t = Traffic(net, n_v, n_p)
+    t.reset(np.random.default_rng(5))
+    out: dict = {"traffic": t, "contacts": 0, "conflicts": 0, "p_in_car": 0, "standing": [], "p_pose": [],
+                 "v_pose": [], "v_speed": []}
+    for _ in range(1200):
+        t.step(0.1, -1e4, -1e4)
+        out["contacts"] += len(t.vehicle_contacts())
+        inside = np.flatnonzero(t._is_connector[t.v_path])
+        conns = t.v_path[inside]
+        out["conflicts"] += int(t._conflict[np.ix_(conns, conns)].sum())
+        out["standing"].append(float((t.v_speed < 0.1).mean()))
+        out["v_pose"].append(t.v_pose.copy())
+        out["v_speed"].append(t.v_speed.copy())
+        out["p_pose"].append(t.p_pose.copy())
+    return out
+
+
+def test_dense_traffic_has_no_vehicle_contacts(dense) -> None:
+    assert dense["contacts"] == 0
+
+
+def test_conflicting_junction_movements_never_share_a_junction(dense) -> None:
+    assert dense["conflicts"] == 0
+
+
+def test_dense_traffic_does_not_gridlock(dense) -> None:
+    standing = np.array(dense["standing"])
+    assert standing[-300:].mean() < 0.5  # the last 30 s: most vehicles move
+    travelled = np.linalg.norm(np.diff(np.array(dense["v_pose"])[:, :, :2], axis=0), axis=2).sum(axis=0)
+    assert np.median(travelled) > 300.0
+
+
+def test_pedestrians_and_vehicles_never_touch(dense) -> None:
+    for v_pose, p_pose in zip(dense["v_pose"], dense["p_pose"], strict=True):
+        rel = p_pose[:, None, :2] - v_pose[None, :, :2]
+        c, s = np.cos(v_pose[:, 2]), np.sin(v_pose[:, 2])
+        fwd, lat = rel[..., 0] * c + rel[..., 1] * s, -rel[..., 0] * s + rel[..., 1] * c
+        assert not ((np.abs(fwd) < LENGTH_M / 2 + 0.25) & (np.abs(lat) < WIDTH_M / 2 + 0.25)).any()
+
+
+def test_conflict_table_separates_crossing_turns(town) -> None:
+    net, _ = town
+    t = Traffic(net, 0, 0)
+    conflicting = t._conflict.sum(axis=1)
+    connectors = [p.index for p in net.paths if p.kind == "connector"]
+    assert (conflicting[connectors] > 0).mean() > 0.5  # most movements cross or merge with another
+    assert (t._conflict == t._conflict.T).all() and not t._conflict.diagonal().any()
+
+
+def _lane_scenario(town, n_v: int, n_p: int) -> tuple[Traffic, object]:
+    net, _ = town
+    t = Traffic(net, n_v, n_p)
+    t.reset(np.random.default_rng(0))
+    lane = max(net.lanes, key=lambda p: p.length_m)
+    return t, lane
+
+
+def test_a_vehicle_stops_for_the_ego_car_on_its_lane(town) -> None:
+    t, lane = _lane_scenario(town, 1, 0)
+    t.v_path[0], t.v_s[0] = lane.index, 100.0
+    x, y, yaw = lane.pose_at(150.0)
+    for _ in range(300):
+        t.step(0.1, x, y, np.radians(yaw))
+    gap = np.hypot(t.v_pose[0, 0] - x, t.v_pose[0, 1] - y) - LENGTH_M
+    assert t.v_speed[0] < 0.1 and 1.5 < gap < 6.0
+
+
+def test_a_vehicle_stops_for_a_pedestrian_on_its_lane(town) -> None:
+    t, lane = _lane_scenario(town, 1, 1)
+    t.v_path[0], t.v_s[0] = lane.index, 100.0
+    x, y, _ = lane.pose_at(150.0)
+    t.hold_pedestrian(0, x, y)
+    for _ in range(300):
+        t.step(0.1, -1e4, -1e4)
+    gap = np.hypot(t.v_pose[0, 0] - x, t.v_pose[0, 1] - y) - LENGTH_M / 2
+    assert t.v_speed[0] < 0.1 and 1.5 < gap < 6.0
+
+
+def test_a_vehicle_is_not_held_up_by_the_ego_car_beside_it(town) -> None:
+    t, lane = _lane_scenario(town, 1, 0)
+    t.v_path[0], t.v_s[0] = lane.index, 100.0
+    x, y, yaw = lane.pose_at(100.0)
+    left = np.radians(yaw) + np.pi / 2
+    for _ in range(50):  # the ego car level with it in the other lane
+        t.step(0.1, x + 3.5 * np.cos(left), y + 3.5 * np.sin(left), np.radians(yaw) + np.pi)
+    assert t.v_speed[0] > 3.0

@@ -16,18 +16,10 @@ one component or all are evaluated, so patched cache entries are bitwise equal t
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
-import numba
 import numpy as np
 
-
-def _jit(fn: Callable) -> Callable:
-    """numba.njit with an on-disk cache where a writable cache location exists, else compiled once per process."""
-    try:
-        return numba.njit(cache=True, error_model="numpy")(fn)
-    except RuntimeError:  # no cache locator: read-only install and no writable user cache dir (NUMBA_CACHE_DIR)
-        return numba.njit(cache=False, error_model="numpy")(fn)
+from brlcli.jit import jit as _jit
 
 
 @_jit

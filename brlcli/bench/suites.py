@@ -15,8 +15,16 @@ from brlcli.sim.traffic import CORL_TRAFFIC
 from brlcli.sim.weather import TEST_WEATHERS, TRAIN_WEATHERS, get_weather
 
 SUITES = ("paper", "validation", "validation_starts", "corl2017", "nocrash", "nav_validation")
-SUITE_VERSION = {"paper": 1, "validation": 1, "validation_starts": 1, "corl2017": 2, "nocrash": 2,
+SUITE_VERSION = {"paper": 1, "validation": 1, "validation_starts": 1, "corl2017": 3, "nocrash": 3,
                  "nav_validation": 2}
+SUITE_CHANGES = {
+    ("corl2017", 2): "route commands replanned when the car leaves its route",
+    ("nocrash", 2): "route commands replanned when the car leaves its route",
+    ("nav_validation", 2): "route commands replanned when the car leaves its route",
+    ("corl2017", 3): "traffic with junction right of way, path-based braking and pedestrians that wait for cars",
+    ("nocrash", 3): "traffic with junction right of way, path-based braking and pedestrians that wait for cars",
+}
+"""What changed in each suite version after the first: results of an older version are readable and labelled."""
 NAV_VALIDATION_ROUTES = 8
 """Planner routes per town in the navigation validation suite (`brlcli.sim.navroutes.validation_routes`)."""
 NAV_VALIDATION_CONDITIONS = {"training": ("town01", (1,)), "new_town_weather": ("town02", (14,))}

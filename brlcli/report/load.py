@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from brlcli.bench.suites import SUITE_CHANGES, SUITE_VERSION
 from brlcli.errors import BrlInputError
 
 COMMON_KEYS: tuple[str, ...] = ("suite", "condition", "task", "town", "weather", "id", "policy", "setting",
@@ -200,6 +201,13 @@ def _merge(dirs: list[ResultsDir], loaded: list[tuple[ResultsDir, list[dict[str,
     notes = []
     if duplicates:
         notes.append(f"{duplicates} duplicate episode records (same policy, setting and episode id) were merged.")
+    for d in dirs:
+        current = SUITE_VERSION.get(d.suite, d.suite_version)
+        if d.suite_version < current:
+            changes = "; ".join(SUITE_CHANGES[(d.suite, v)] for v in range(d.suite_version + 1, current + 1)
+                                if (d.suite, v) in SUITE_CHANGES)
+            notes.append(f"{d.path}: {d.suite} results of suite version {d.suite_version}, older than this brl's "
+                         f"{current} (since then: {changes}); they are not comparable with version {current}'s.")
     torn = sum(d.torn_last_line for d in dirs)
     if torn:
         notes.append(f"{torn} results file(s) ended in a torn line (an interrupted write), which was ignored.")

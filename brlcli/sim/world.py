@@ -203,7 +203,7 @@ class World:
         ctl = control.clipped()
         c = self._client
         dt = FRAME_DT_S / self.substeps
-        self.traffic.step(FRAME_DT_S, self.ego.x_m, self.ego.y_m)
+        self.traffic.step(FRAME_DT_S, self.ego.x_m, self.ego.y_m, self.ego.yaw_rad)
         self._sync_traffic()
         for _ in range(self.substeps):
             speed_before = abs(self.ego.speed_ms) * 3.6
