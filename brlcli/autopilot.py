@@ -10,25 +10,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from brlcli.classes import CarlaClass
+from brlcli.sim.hazard import hazard_gap_m
 from brlcli.sim.roadnet import Command, Route
-from brlcli.sim.traffic import CAR_CIRCLE_REACH_M, CAR_CIRCLES_M
-from brlcli.sim.vehicle import LENGTH_M, MAX_STEER_DEG, WHEELBASE_M, Control
+from brlcli.sim.vehicle import MAX_STEER_DEG, WHEELBASE_M, Control
 from brlcli.sim.world import FRAME_DT_S, Measurements, World
 
 CRUISE_KMH = 22.0
 TURN_KMH = 12.0
 STOP_GAP_M = 7.0
 """Free distance ahead (bumper to obstacle) below which the expert brakes to a stop."""
-PATH_AHEAD_M = 25.0
-"""How far along its route the expert looks for hazards."""
-PREDICT_S = (0.0, 0.5, 1.0, 1.5, 2.0)
-"""Times (s) at which each road user's position is predicted at its current velocity: a hazard is a road user
-whose current or predicted position lies on the expert's path ahead (crossing traffic at a junction, a pedestrian
-stepping out, an oncoming car across a turn)."""
-CORRIDOR_HALF_M = {"vehicle": 2.1, "pedestrian": 1.5}
-"""Half-width of the path corridor a road user must enter to be a hazard (a car's circle, CAR_CIRCLES_M; a
-pedestrian's centre): the expert's half width, 0.9 m, plus the user's half width and a margin."""
 
 
 @dataclass(frozen=True)
@@ -85,46 +75,8 @@ class Autopilot:
         return TURN_KMH if curvy else self.cruise_kmh
 
     def _obstacle_gap(self, m: Measurements) -> float:
-        """Free distance (m, bumper to the nearest hazard) along the route ahead; inf when the path is clear.
-
-        Every road user's position now and at PREDICT_S is tested against the corridor of the next PATH_AHEAD_M of
-        the route; a user behind the car moving its way (following traffic) is no hazard."""
-        boxes = self.world.traffic.boxes()
-        if not len(boxes):
-            return math.inf
-        vel = self.world.traffic.velocities()
-        # only users that can reach the path within the prediction horizon
-        horizon = PATH_AHEAD_M + CORRIDOR_HALF_M["vehicle"] + LENGTH_M + PREDICT_S[-1] * np.linalg.norm(vel, axis=1)
-        near = np.hypot(boxes[:, 1] - m.x, boxes[:, 2] - m.y) < horizon
-        if not near.any():
-            return math.inf
-        boxes, vel = boxes[near], vel[near]
-        car = boxes[:, 0] == float(CarlaClass.VEHICLES)
-        # cars as three circles along their length (CAR_CIRCLES_M), pedestrians as one
-        offsets = np.where(car[:, None], CAR_CIRCLES_M[None, :], 0.0)  # (U, 3)
-        heading = np.column_stack([np.cos(boxes[:, 7]), np.sin(boxes[:, 7])])
-        xy = (boxes[:, None, 1:3] + offsets[:, :, None] * heading[:, None, :]).reshape(-1, 2)
-        vel = np.repeat(vel, 3, axis=0)
-        half = np.repeat(np.where(car, CORRIDOR_HALF_M["vehicle"], CORRIDOR_HALF_M["pedestrian"]), 3)
-        reach = np.repeat(np.where(car, CAR_CIRCLE_REACH_M, boxes[:, 4] / 2), 3)
-        s, _ = self.route.project(m.x, m.y)
-        d = np.arange(0.0, PATH_AHEAD_M + 0.5, 1.0)
-        q = np.clip(s + d, 0.0, self.route.cum_s[-1])
-        path = np.column_stack([np.interp(q, self.route.cum_s, self.route.points[:, 0]),
-                                np.interp(q, self.route.cum_s, self.route.points[:, 1])])
-        yaw = math.radians(m.yaw_deg)
-        ego_heading = np.array([math.cos(yaw), math.sin(yaw)])
-        rel = np.repeat(boxes[:, 1:3], 3, axis=0) - (m.x, m.y)
-        behind = (rel @ ego_heading < 0.0) & (vel @ ego_heading > 0.5)  # following traffic is no hazard
-        best = math.inf
-        for t in PREDICT_S:
-            p = xy + t * vel  # (3U, 2)
-            dist = np.linalg.norm(p[:, None, :] - path[None, :, :], axis=2)  # (3U, P)
-            hit = (dist < half[:, None]) & ~behind[:, None]
-            if hit.any():
-                users, points = np.nonzero(hit)
-                best = min(best, float((d[points] - LENGTH_M / 2 - reach[users]).min()))
-        return max(best, 0.0) if best < math.inf else math.inf
+        """Free distance (m) to the nearest hazard on the route ahead (`hazard_gap_m`); inf when the path is clear."""
+        return hazard_gap_m(self.world.traffic, self.route, m.x, m.y, m.yaw_deg)
 
     def must_stop(self, m: Measurements) -> bool:
         """Whether the expert wants to stand still: the route's end, or an obstacle closer than STOP_GAP_M ahead."""

@@ -56,6 +56,34 @@ def state_vector(labels: np.ndarray) -> np.ndarray:
     return states_from_counts(category_counts(labels))
 
 
+NEARNESS_RANGE_M = 30.0
+"""Depth (m) beyond which a road user adds nothing to the nearness state (outside the paper)."""
+STATE_OPTIONS = {"paper": 0, "nearness": 3}
+"""Agent state options (issue 35): the paper's 30 numbers, or those and 3 nearness numbers from the camera's depth
+image (`depth_nearness`; outside the paper). Value: how many numbers the option adds."""
+
+
+def depth_nearness(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Nearness clip(1 - d / NEARNESS_RANGE_M, 0, 1) of the closest vehicle or pedestrian pixel in each image column
+    (left, middle, right: COLUMN_SHARES), 0 where there is none: 3 numbers (outside the paper)."""
+    w = labels.shape[1]
+    c1 = round(COLUMN_SHARES[0] * w)
+    c2 = round((COLUMN_SHARES[0] + COLUMN_SHARES[1]) * w)
+    dynamic = (labels == CarlaClass.VEHICLES) | (labels == CarlaClass.PEDESTRIANS)
+    near = np.where(dynamic, np.clip(1.0 - np.asarray(depth, np.float64) / NEARNESS_RANGE_M, 0.0, 1.0), 0.0)
+    return np.array([near[:, :c1].max(initial=0.0), near[:, c1:c2].max(initial=0.0), near[:, c2:].max(initial=0.0)])
+
+
+def agent_state(labels: np.ndarray, depth: np.ndarray | None, option: str = "paper") -> np.ndarray:
+    """The agent's state under a state option (STATE_OPTIONS): the 30-vector, with the nearness numbers appended."""
+    state = state_vector(labels)
+    if option == "paper":
+        return state
+    if depth is None:
+        raise ValueError("the nearness state needs the camera's depth image")
+    return np.concatenate([state, depth_nearness(labels, depth)])
+
+
 ROAD_VIEW_CATEGORIES = {"road": (0,), "road+line": (0, 1)}
 """What the reward's road view counts: Road entries only, or Road and Road-line entries (the authors' code)."""
 

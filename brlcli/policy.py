@@ -19,12 +19,12 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from brlcli.errors import BrlInputError
-from brlcli.features import STATE_DIM, state_vector
+from brlcli.features import STATE_DIM, STATE_OPTIONS, agent_state
 from brlcli.retired import RETIRED_CONFIG, retired_message
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.settings import setting_name
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import ACTIONS, FRAMES_PER_DECISION
+from brlcli.sim.gym_env import ACTION_SETS, ACTIONS, FRAMES_PER_DECISION, STOP
 from brlcli.sim.vehicle import Control
 
 if TYPE_CHECKING:
@@ -43,6 +43,7 @@ class Observation:
     labels: np.ndarray | None
     measurements: Any
     command: int
+    depth: np.ndarray | None = None
 
 
 class Policy(Protocol):
@@ -112,20 +113,25 @@ def model_camera(model_path: Path) -> CameraConfig | None:
 
 
 class StatePolicy:
-    """A bench policy from any greedy function of the 30-number state (BRL agent, DQN network), decided every 7
-    frames on the ground-truth labels or, with a `labeler`, on the segmentation net's labels of the RGB image."""
+    """A bench policy from any greedy function of the agent's state (BRL agent, DQN network), decided every 7
+    frames on the ground-truth labels or, with a `labeler`, on the segmentation net's labels of the RGB image; the
+    action index picks from `actions` (ACTION_SETS) and the state is the `state` option's (STATE_OPTIONS)."""
 
     frames_per_decision = FRAMES_PER_DECISION
 
     def __init__(self, name: str, setting: str, act: Callable[..., int],
                  labeler: Callable[[np.ndarray], np.ndarray] | None = None,
-                 camera: CameraConfig | None = None, uses_command: bool = False) -> None:
+                 camera: CameraConfig | None = None, uses_command: bool = False, actions: str = "paper",
+                 state: str = "paper") -> None:
         self.uses_command = uses_command  # act(state, command) instead of act(state)
         self.name = name
         self.setting = setting
         self.act = act
         self.labeler = labeler
         self.camera = None if camera == CameraConfig() else camera  # None: the bench's default camera
+        self.actions = ACTION_SETS[actions]
+        self.state_option = state
+        self.needs_depth = state != "paper"
 
     @property
     def needs_rgb(self) -> bool:
@@ -138,9 +144,10 @@ class StatePolicy:
     def decide(self, obs: Observation) -> Control:
         """The action primitive chosen on the (ground-truth or estimated) label image's state."""
         labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
+        state = agent_state(labels, obs.depth, self.state_option)
         if self.uses_command:
-            return ACTIONS[int(self.act(state_vector(labels), obs.command))]
-        return ACTIONS[int(self.act(state_vector(labels)))]
+            return self.actions[int(self.act(state, obs.command))]
+        return self.actions[int(self.act(state))]
 
 
 def greedy_brl(agent: Any) -> Callable[[np.ndarray], int]:
@@ -174,17 +181,29 @@ class BRLPolicy(StatePolicy):
             raise BrlInputError(f"model {model} is {'' if command else 'not '}command-conditioned but its "
                                 f"config.json says task {self.task}")
         self.agent = load_navigation_agent(model) if command else load_lane_keeping_agent(model)
+        config = _training_config(Path(model))
+        actions, state = str(config.get("actions", "paper")), str(config.get("state", "paper"))
+        if actions not in ACTION_SETS or state not in STATE_OPTIONS:
+            raise BrlInputError(f"model {model}: its config.json names action set '{actions}' and state '{state}', "
+                                f"which this brl does not know ({', '.join(ACTION_SETS)}; {', '.join(STATE_OPTIONS)})")
+        dim, n_actions = STATE_DIM + STATE_OPTIONS[state], len(ACTION_SETS[actions])
         if self.agent.state_dim == STATE_DIM and self.agent.n_actions == len(ACTIONS) - 1:
             raise BrlInputError(f"model {model} has no backward primitive: "
                                 f"{retired_message('no_backward', RETIRED_CONFIG['no_backward'])}")
-        if self.agent.state_dim != STATE_DIM or self.agent.n_actions != len(ACTIONS):
-            raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and "
-                                f"{self.agent.n_actions} actions; brl's agent uses {STATE_DIM} and {len(ACTIONS)}")
+        if self.agent.state_dim != dim or self.agent.n_actions != n_actions:
+            raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and {self.agent.n_actions} "
+                                f"actions, but its config.json's state '{state}' and action set '{actions}' need {dim} "
+                                f"and {n_actions}")
         self.variant = model_variant(Path(model))
         label = self.variant if self.task == "lane-keeping" else f"{self.variant}, navigation"
+        if self.task == "navigation":
+            label += ", stop primitive" if actions == "stop" else ", no brake"
+        if state != "paper":
+            label += f", {state} state"
         super().__init__(name, setting_name(model_training_input(Path(model)), deploy, label),
                          greedy_command_brl(self.agent) if command else greedy_brl(self.agent),
-                         labeler_for(deploy, segnet), model_camera(Path(model)), uses_command=command)
+                         labeler_for(deploy, segnet), model_camera(Path(model)), uses_command=command,
+                         actions=actions, state=state)
 
 
 class AutopilotPolicy:
@@ -210,8 +229,8 @@ class AutopilotPolicy:
         return self._pilot.expert(obs.measurements)
 
 
-STOP_ACTION = Control(steer=0.0, throttle=0.0, brake=1.0)
-"""A fifth action primitive outside the paper (issue 20's feasibility check): stand still or brake."""
+STOP_ACTION = STOP
+"""The fifth action primitive outside the paper (issue 20 feasibility check, issue 35 agent): brake to a stop."""
 ORACLE_STOPS = ("never", "braking", "standstill")
 """When the oracle takes STOP_ACTION: never (the paper's actions), whenever the expert brakes, or only when the
 expert wants to stand still (an obstacle ahead, the goal)."""

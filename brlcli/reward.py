@@ -79,3 +79,50 @@ def route_terms(progress_m: float, expected_m: float, lateral_m: float, params: 
     shortfall = min(max(1.0 - progress_m / expected_m, 0.0), 2.0)
     wrong = abs(lateral_m) > params.wrong_turn_m
     return {"progress": -params.r_progress * shortfall, "wrong_turn": -params.r_wrong_turn if wrong else 0.0}
+
+
+@dataclass(frozen=True)
+class HazardRewardParams:
+    """Traffic (issue 35, outside the paper): a target speed that falls to zero near a hazard on the route.
+
+    With the privileged free distance g to the nearest road user on (or about to enter) the route ahead
+    (`brlcli.sim.hazard.hazard_gap_m`), the target speed is v_h = v_t * clip((g - stop_m) / (slow_m - stop_m), 0, 1).
+    Where v_h < v_t the paper's speed term is measured against v_h instead of v_t (no cost for standing at a hazard),
+    driving faster than v_h costs -r_hazard * ((v - v_h) / v_t)^2, and the route's progress term expects the advance
+    at v_h. The collision term is the paper's (-r_collision); a collision with a road user ends a training episode.
+    """
+
+    r_hazard: float = 20.0
+    stop_m: float = 4.0
+    slow_m: float = 15.0
+
+    def __post_init__(self) -> None:
+        if not (self.r_hazard >= 0 and 0 <= self.stop_m < self.slow_m):
+            raise ValueError("r_hazard must be >= 0 and 0 <= stop_m < slow_m, got "
+                             f"{self.r_hazard}, {self.stop_m}, {self.slow_m}")
+
+    def target_kmh(self, gap_m: float, target_speed_kmh: float) -> float:
+        """The hazard-limited target speed v_h (km/h) for a free distance `gap_m` (inf: no hazard)."""
+        share = min(max((gap_m - self.stop_m) / (self.slow_m - self.stop_m), 0.0), 1.0)
+        return target_speed_kmh * share
+
+
+def hazard_terms(speed_kmh: float, gap_m: float, terms: dict[str, float], reward: RewardParams,
+                 params: HazardRewardParams) -> dict[str, float]:
+    """The paper's terms with the speed term re-measured against the hazard target v_h, plus the `hazard` term
+    (HazardRewardParams); `total` updated. Unchanged (hazard 0) where v_h is the paper's target speed."""
+    vt = reward.target_speed_kmh
+    vh = params.target_kmh(gap_m, vt)
+    out = {**terms, "hazard": 0.0}
+    if vh >= vt or terms["collision"] or terms["offroad"] or terms["otherlane"]:
+        return out
+    speed = 0.0
+    if speed_kmh < 0:
+        speed = -reward.r_reverse * ((speed_kmh - vh) / vt) ** 2
+    elif speed_kmh < vh:
+        speed = -reward.r_slow * ((speed_kmh - vh) / vt) ** 2
+    else:
+        out["hazard"] = -params.r_hazard * ((speed_kmh - vh) / vt) ** 2
+    out["speed"] = speed
+    out["total"] = sum(v for k, v in out.items() if k != "total")
+    return out

@@ -32,12 +32,12 @@ from brlcli.agent import BayesianAgent, LearnStep
 from brlcli.agent.command import CommandAgent
 from brlcli.errors import BrlInputError
 from brlcli.executor import Executor, report, run_tasks
-from brlcli.features import STATE_DIM
+from brlcli.features import STATE_DIM, STATE_OPTIONS
 from brlcli.outdir import refuse_existing
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.segnet import labeler_for
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import ACTION_NAMES, ACTIONS, DrivingEnv
+from brlcli.sim.gym_env import ACTION_SET_NAMES, ACTION_SETS, DrivingEnv
 from brlcli.sim.roadnet import BRANCH_NAMES, Command
 from brlcli.trainconfig import TrainConfig
 
@@ -48,6 +48,13 @@ LOG_COLUMNS = (
     "r_progress", "r_wrong_turn",
 )
 """Columns of log.csv, one row per learning step (`log_row`)."""
+TRAFFIC_LOG_COLUMNS = ("r_hazard", "hazard_gap_m", "crashed", "traffic")
+"""Columns log.csv adds for a run with traffic or the hazard reward (outside the paper)."""
+
+
+def log_columns(cfg: TrainConfig) -> tuple[str, ...]:
+    """The log.csv columns of a run: LOG_COLUMNS, and TRAFFIC_LOG_COLUMNS with traffic or the hazard reward."""
+    return LOG_COLUMNS + (TRAFFIC_LOG_COLUMNS if cfg.traffic or cfg.r_hazard else ())
 CHECKPOINT_VERSION = 1
 RESTART_CHECKS = (1 / 3, 2 / 3)
 """Fractions of an attempt's learning steps after which the trap test of `TrainConfig.restart_below` runs (at the
@@ -114,9 +121,10 @@ class LaneKeepingLearner:
 
 def new_learner(cfg: TrainConfig) -> Learner:
     """A fresh learner for this run: the paper's agent, or the command-conditioned one for navigation."""
+    dim, n_actions = STATE_DIM + STATE_OPTIONS[cfg.state], len(ACTION_SETS[cfg.actions])
     if cfg.task == "navigation":
-        return CommandAgent(state_dim=STATE_DIM, n_actions=len(ACTIONS), params=cfg.agent_params())
-    return LaneKeepingLearner(BayesianAgent(state_dim=STATE_DIM, n_actions=len(ACTIONS), params=cfg.agent_params()))
+        return CommandAgent(state_dim=dim, n_actions=n_actions, params=cfg.agent_params())
+    return LaneKeepingLearner(BayesianAgent(state_dim=dim, n_actions=n_actions, params=cfg.agent_params()))
 
 
 def load_learner(cfg: TrainConfig, path: Path) -> Learner:
@@ -250,7 +258,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     env = make_env(cfg)
     checkpoint = Checkpoint(run_dir)
     run = checkpoint.load(cfg) if resume else None
-    log = TrainingLog(run_dir / "log.csv", keep_rows=None if run is None else run.step)
+    log = TrainingLog(run_dir / "log.csv", keep_rows=None if run is None else run.step, columns=log_columns(cfg))
     run = run or Run.start(cfg)
     curve = LearningCurve(run_dir, cfg, env.labeler, run.step) if cfg.curve_every else None
     reporter = ProgressReport(progress) if progress else None
@@ -414,7 +422,8 @@ class LearningCurve(Hook):
         from brlcli.curve import write_curve
 
         t0 = time.perf_counter()
-        policy = greedy_policy(deployable(agent), self.cfg.task, self.setting, self.labeler, self.cfg.camera())
+        policy = greedy_policy(deployable(agent), self.cfg.task, self.setting, self.labeler, self.cfg.camera(),
+                               self.cfg.actions, self.cfg.state)
         self.rows.append({"env_steps": step, **self.evaluator.evaluate(policy)})
         write_curve(self.path, self.rows)
         self.eval_s += time.perf_counter() - t0
@@ -472,7 +481,8 @@ def log_row(run: Run, decision: int, action: int, reward: float, learned: LearnS
             command: int) -> dict[str, Any]:
     """One learning step's log.csv row, by column name (LOG_COLUMNS)."""
     terms, m = info["reward_terms"], info["measurements"]
-    return {"step": run.step, "episode": run.episode, "decision": decision, "action": ACTION_NAMES[action],
+    return {"step": run.step, "episode": run.episode, "decision": decision,
+            "action": ACTION_SET_NAMES[run.cfg.actions][action],
             "reward": reward, "r_collision": terms["collision"], "r_offroad": terms["offroad"],
             "r_otherlane": terms["otherlane"], "r_speed": terms["speed"], "r_road_view": terms["road_view"],
             "td_error": learned.td_error, "component": learned.component, "created": int(learned.created),
@@ -481,7 +491,9 @@ def log_row(run: Run, decision: int, action: int, reward: float, learned: LearnS
             "forward_speed_kmh": m["forward_speed_kmh"], "intersection_offroad": m["intersection_offroad"],
             "intersection_otherlane": m["intersection_otherlane"], "x": m["x"], "y": m["y"],
             "attempt": run.stats.attempt, "command": command, "r_progress": terms.get("progress", 0.0),
-            "r_wrong_turn": terms.get("wrong_turn", 0.0)}
+            "r_wrong_turn": terms.get("wrong_turn", 0.0), "r_hazard": terms.get("hazard", 0.0),
+            "hazard_gap_m": min(float(info.get("hazard_gap_m", np.inf)), 1e3),
+            "crashed": int(info.get("crashed", False)), "traffic": info.get("traffic", "")}
 
 
 def _format(v: Any) -> str:
@@ -491,18 +503,19 @@ def _format(v: Any) -> str:
 class TrainingLog:
     """log.csv: the header, then an episode's rows at a time (flushed); a resumed run keeps its first rows."""
 
-    def __init__(self, path: Path, keep_rows: int | None) -> None:
+    def __init__(self, path: Path, keep_rows: int | None, columns: tuple[str, ...] = LOG_COLUMNS) -> None:
+        self.columns = columns
         self.path = path
         if keep_rows is None:
-            atomic_write_bytes(path, (",".join(LOG_COLUMNS) + "\n").encode())
+            atomic_write_bytes(path, (",".join(columns) + "\n").encode())
         elif path.exists():  # drop the rows of an unfinished episode
             lines = path.read_bytes().split(b"\n")
             atomic_write_bytes(path, b"".join(line + b"\n" for line in lines[: keep_rows + 1]))
 
     def append(self, rows: Sequence[dict[str, Any]]) -> None:
-        """Append rows, each value under its LOG_COLUMNS name."""
+        """Append rows, each value under its column name."""
         with open(self.path, "a", newline="") as fh:
-            csv.writer(fh, lineterminator="\n").writerows([_format(row[c]) for c in LOG_COLUMNS] for row in rows)
+            csv.writer(fh, lineterminator="\n").writerows([_format(row[c]) for c in self.columns] for row in rows)
 
 
 class Checkpoint:
@@ -568,17 +581,19 @@ def make_env(cfg: TrainConfig) -> DrivingEnv:
                       camera=cfg.camera(), offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
                       start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end,
                       route_reward=cfg.route_reward(), junction_weight=cfg.junction_weight if nav else None,
-                      junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None)
+                      junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None,
+                      actions=cfg.actions, traffic=tuple(cfg.traffic), hazard=cfg.hazard_reward(), state=cfg.state)
 
 
 def greedy_policy(model: Any, task: str, setting: str, labels: Callable[[np.ndarray], np.ndarray] | None,
-                  camera: CameraConfig) -> Any:
+                  camera: CameraConfig, actions: str = "paper", state: str = "paper") -> Any:
     """The bench policy of a trained model, acting greedily (never with the training generator)."""
     from brlcli.policy import StatePolicy, greedy_brl, greedy_command_brl
 
     if task == "navigation":
-        return StatePolicy("brl", setting, greedy_command_brl(model), labels, camera, uses_command=True)
-    return StatePolicy("brl", setting, greedy_brl(model), labels, camera)
+        return StatePolicy("brl", setting, greedy_command_brl(model), labels, camera, uses_command=True,
+                           actions=actions, state=state)
+    return StatePolicy("brl", setting, greedy_brl(model), labels, camera, actions=actions, state=state)
 
 
 EVALUATION_SUITES = {"lane-keeping": "validation_starts", "navigation": "nav_validation"}
@@ -598,7 +613,7 @@ def evaluate_greedy(model: Any, cfg: TrainConfig) -> dict[str, Any]:
     evaluator = SuiteEvaluator(suite, weathers=weathers)
     try:
         policy = greedy_policy(model, cfg.task, setting_name(cfg.input, cfg.input, cfg.variant), labeler(cfg),
-                               cfg.camera())
+                               cfg.camera(), cfg.actions, cfg.state)
         figures = evaluator.evaluate(policy)
     finally:
         evaluator.close()

@@ -13,11 +13,12 @@ from typing import Any
 from brlcli.agent import BRLParams
 from brlcli.config import Layer, check_known_keys, merge_layer, resolve
 from brlcli.errors import BrlInputError
+from brlcli.features import STATE_OPTIONS
 from brlcli.retired import RETIRED_CONFIG, RETIRED_PARAMS, drop_retired, refuse_retired
-from brlcli.reward import RewardParams, RouteRewardParams
+from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams
 from brlcli.segnet import check_input_source
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import DrivingEnv
+from brlcli.sim.gym_env import ACTION_SETS, TRAFFIC_LEVELS, DrivingEnv
 from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
 from brlcli.sim.weather import get_weather
 
@@ -111,6 +112,14 @@ class TrainConfig:
     # in member_<k>/) and ships them as one model that acts by majority vote
     member: int = 0  # which committee member a run is: member 0 is the seed's own run, member k > 0 draws its
     # generators from (seed, k) as well
+    actions: str = "paper"  # outside the paper when "stop": the four primitives and a fifth, stop (ACTION_SETS)
+    traffic: list[str] = field(default_factory=list)  # outside the paper: NoCrash traffic levels of the training
+    # episodes (each episode draws one; [] = no traffic); a collision with a road user ends an episode
+    r_hazard: float = 0.0  # outside the paper, > 0: the hazard reward (HazardRewardParams): the target speed falls to
+    # zero near a road user on the route; 0 = the paper's reward
+    hazard_stop_m: float = 4.0
+    hazard_slow_m: float = 15.0
+    state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers) or "nearness" (+3, outside it)
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
@@ -146,9 +155,17 @@ class TrainConfig:
             raise BrlInputError("--curve-every must be >= 0")
         if self.max_restarts < 0:
             raise BrlInputError("max_restarts must be >= 0")
+        if self.actions not in ACTION_SETS:
+            raise BrlInputError(f"unknown action set '{self.actions}'; choose one of {', '.join(ACTION_SETS)}")
+        if self.state not in STATE_OPTIONS:
+            raise BrlInputError(f"unknown state option '{self.state}'; choose one of {', '.join(STATE_OPTIONS)}")
+        if not isinstance(self.traffic, list) or any(t not in TRAFFIC_LEVELS for t in self.traffic):
+            raise BrlInputError(f"traffic must be a list of levels from {', '.join(TRAFFIC_LEVELS)}, got "
+                                f"{self.traffic!r}")
         try:
             self.reward_params()
             self.route_reward()
+            self.hazard_reward()
             self.camera()
             DrivingEnv.check_episode_rules(self.offroad_end, self.start_offset_m, self.start_yaw_deg,
                                            self.otherlane_end)
@@ -204,6 +221,12 @@ class TrainConfig:
         if self.task != "navigation":
             return None
         return RouteRewardParams(self.r_progress, self.r_wrong_turn, self.wrong_turn_m)
+
+    def hazard_reward(self) -> HazardRewardParams | None:
+        """The hazard reward terms (None when r_hazard is 0: the paper's reward)."""
+        if not self.r_hazard:
+            return None
+        return HazardRewardParams(self.r_hazard, self.hazard_stop_m, self.hazard_slow_m)
 
     def camera(self) -> CameraConfig:
         """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""

@@ -72,3 +72,77 @@ def test_bad_route_and_action_are_clear_errors(env: DrivingEnv) -> None:
     env.reset(seed=0)
     with pytest.raises(BrlInputError):
         env.step(7)
+
+
+# ---------------------------------------------------------------------------------------------- traffic (issue 35)
+@pytest.fixture(scope="module")
+def traffic_env() -> DrivingEnv:
+    from brlcli.reward import HazardRewardParams, RouteRewardParams
+
+    e = DrivingEnv(town="town01", routes="navigation", actions="stop", traffic=("regular", "dense"),
+                   hazard=HazardRewardParams(), state="nearness", route_reward=RouteRewardParams())
+    yield e
+    e.close()
+
+
+def test_traffic_env_passes_gymnasium_checker(traffic_env: DrivingEnv) -> None:
+    check_env(traffic_env, skip_render_check=True)
+    assert traffic_env.action_space.n == 5 and traffic_env.observation_space.shape == (33,)
+
+
+def test_the_stop_primitive_brakes_to_a_standstill(traffic_env: DrivingEnv) -> None:
+    traffic_env.reset(seed=1)
+    for _ in range(4):
+        traffic_env.step(0)
+    assert traffic_env.world.ego.speed_ms > 1.0
+    for _ in range(3):
+        *_, info = traffic_env.step(4)
+    assert abs(info["measurements"]["forward_speed_kmh"]) < 0.5
+
+
+def test_episodes_draw_their_traffic_level(traffic_env: DrivingEnv) -> None:
+    levels = {traffic_env.reset(seed=s)[1]["traffic"] for s in range(12)}
+    assert levels == {"regular", "dense"}
+
+
+def test_a_car_ahead_lowers_the_target_and_waiting_for_it_is_not_being_stuck(traffic_env: DrivingEnv) -> None:
+    obs, info = traffic_env.reset(seed=2)
+    t = traffic_env.world.traffic
+    for i in range(t.n_vehicles):
+        t.hold_vehicle(i, -1e4 - 10 * i, -1e4, 0.0)
+    for i in range(t.n_pedestrians):
+        t.hold_pedestrian(i, 1e4 + 10 * i, 1e4)
+    m = traffic_env.world.ego
+    s, _ = traffic_env.route.project(m.x_m, m.y_m)
+    x, y, yaw = traffic_env.route.pose_at(s + 9.0)
+    t.hold_vehicle(0, x, y, yaw)  # a standing car 9 m ahead on the route
+    for _ in range(12):  # about 8 s standing: more than STUCK_TIME_S
+        obs, reward, terminated, truncated, info = traffic_env.step(4)
+        assert not (terminated or truncated)
+    assert info["hazard_gap_m"] < 5.0 and info["reward_terms"]["speed"] == 0.0
+    assert info["reward_terms"]["progress"] == 0.0  # no progress is expected at a hazard
+    assert obs[31] > 0.5  # the middle column's nearness sees the car
+
+
+def test_hitting_a_road_user_ends_a_traffic_episode(traffic_env: DrivingEnv) -> None:
+    traffic_env.reset(seed=2)
+    t = traffic_env.world.traffic
+    for i in range(t.n_vehicles):
+        t.hold_vehicle(i, -1e4 - 10 * i, -1e4, 0.0)
+    m = traffic_env.world.ego
+    s, _ = traffic_env.route.project(m.x_m, m.y_m)
+    x, y, yaw = traffic_env.route.pose_at(s + 12.0)
+    t.hold_vehicle(0, x, y, yaw)
+    for _ in range(15):
+        *_, truncated, info = traffic_env.step(0)
+        if truncated:
+            break
+    assert truncated and info["crashed"] and info["reward_terms"]["collision"] < 0
+
+
+def test_unknown_traffic_options_are_one_line_errors() -> None:
+    for kwargs, match in (({"actions": "brake"}, "action set"), ({"state": "depth"}, "state option"),
+                          ({"traffic": ("heavy",)}, "traffic level"),
+                          ({"traffic": ("dense",), "vehicles": 3}, "not both")):
+        with pytest.raises(BrlInputError, match=match):
+            DrivingEnv(town="town01", **kwargs)

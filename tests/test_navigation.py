@@ -262,3 +262,28 @@ def test_a_committee_trains_its_members_apart_and_drives_by_vote(tmp_path: Path)
         TrainConfig(task="navigation", committee=0)
     with pytest.raises(BrlInputError, match="not a command-conditioned one"):  # a single agent's loader refuses it
         CommandAgent.load(tmp_path / "com" / "model.npz")
+
+
+def test_a_braking_model_trains_in_traffic_and_its_options_are_checked_at_bench(tmp_path: Path) -> None:
+    import csv
+    import json
+
+    from brlcli.policy import BRLPolicy
+
+    cfg = TrainConfig(task="navigation", steps=150, seed=0, evaluate=False, actions="stop", traffic=["regular"],
+                      r_hazard=20.0, state="nearness")
+    train_run(cfg, tmp_path / "stop")
+    rows = list(csv.DictReader(open(tmp_path / "stop" / "log.csv")))
+    assert {"r_hazard", "hazard_gap_m", "crashed", "traffic"} <= set(rows[0]) and rows[0]["traffic"] == "regular"
+    assert "stop" in {r["action"] for r in rows}
+    model = str(tmp_path / "stop" / "model.npz")
+    policy = BRLPolicy("brl", model)
+    assert len(policy.actions) == 5 and "stop primitive" in policy.setting and policy.needs_depth
+    config_file = tmp_path / "stop" / "config.json"
+    saved = json.loads(config_file.read_text())
+    saved["config"]["state"] = "paper"  # a state option the model was not trained with
+    config_file.write_text(json.dumps(saved))
+    with pytest.raises(BrlInputError, match="state size 33 and 5 actions"):
+        BRLPolicy("brl", model)
+    train_run(TrainConfig(task="navigation", steps=60, seed=0, evaluate=False), tmp_path / "plain")
+    assert "no brake" in BRLPolicy("brl", str(tmp_path / "plain" / "model.npz")).setting

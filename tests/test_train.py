@@ -65,7 +65,7 @@ def test_interrupted_run_resumes_bit_identical(tmp_path: Path, params: dict, ext
 
 def test_log_rows_are_written_by_column_name() -> None:
     from brlcli.agent import LearnStep
-    from brlcli.train import Run, log_row
+    from brlcli.train import TRAFFIC_LOG_COLUMNS, Run, log_columns, log_row
 
     learned = LearnStep(-1.5, 2, False, 0.25, "neutral", 3, 0.9, 0.6, 0.1)
     info = {"reward_terms": {"collision": 0.0, "offroad": 0.0, "otherlane": -2.0, "speed": -1.0, "road_view": 0.0},
@@ -73,7 +73,9 @@ def test_log_rows_are_written_by_column_name() -> None:
                              "x": 1.0, "y": 2.0}}
     run = Run(TrainConfig(steps=10), None, np.random.default_rng(0), step=7, episode=2)  # type: ignore[arg-type]
     row = log_row(run, 3, 1, -3.0, learned, info, 2)
-    assert list(row) == list(LOG_COLUMNS)
+    assert list(row) == list(LOG_COLUMNS + TRAFFIC_LOG_COLUMNS)
+    assert log_columns(TrainConfig()) == LOG_COLUMNS  # the paper's runs keep their log format
+    assert log_columns(TrainConfig(traffic=["regular"])) == LOG_COLUMNS + TRAFFIC_LOG_COLUMNS
     assert row["action"] == "right" and row["components"] == 3 and row["tau"] == 0.6 and row["r_progress"] == 0.0
 
 

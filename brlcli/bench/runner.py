@@ -63,16 +63,16 @@ def run_episode(world: World, spec: EpisodeSpec, policy: Policy, bench_seed: int
         m = frame.measurements
         if i % policy.frames_per_decision == 0:
             if not getattr(policy, "needs_camera", True):
-                rgb, labels = None, None
+                rgb, labels, depth = None, None, None
             elif frame.labels is not None:
-                rgb, labels = frame.rgb, frame.labels
+                rgb, labels, depth = frame.rgb, frame.labels, frame.depth
             else:
-                rgb, labels = world.render(rgb=getattr(policy, "needs_rgb", True))[:2]
+                rgb, labels, depth = world.render(rgb=getattr(policy, "needs_rgb", True))
             if replan:
                 command = navigator.command(m.x, m.y, m.yaw_deg)
             else:
                 command = navigator.route.command_at(navigator.route.project(m.x, m.y)[0])
-            control = policy.decide(Observation(rgb, labels, m, int(command)))
+            control = policy.decide(Observation(rgb, labels, m, int(command), depth))
         frame = world.step(control, render=False)
         n = i + 1
         for k in LOG_FIELDS:

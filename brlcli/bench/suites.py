@@ -11,7 +11,7 @@ from brlcli.errors import BrlInputError
 from brlcli.sim.gym_env import route_timeout_s
 from brlcli.sim.roadnet import RoadNetwork
 from brlcli.sim.town import load_town
-from brlcli.sim.traffic import CORL_TRAFFIC
+from brlcli.sim.traffic import CORL_TRAFFIC, NOCRASH_TRAFFIC
 from brlcli.sim.weather import TEST_WEATHERS, TRAIN_WEATHERS, get_weather
 
 SUITES = ("paper", "validation", "validation_starts", "corl2017", "nocrash", "nav_validation")
@@ -55,10 +55,6 @@ NOCRASH_CONDITIONS = {
     "new_weather": ("town01", NOCRASH_WEATHERS_TEST),
     "new_town": ("town02", TRAIN_WEATHERS),
     "new_town_weather": ("town02", NOCRASH_WEATHERS_TEST),
-}
-NOCRASH_TRAFFIC = {  # (vehicles, pedestrians) per task
-    "town01": {"empty": (0, 0), "regular": (20, 50), "dense": (100, 250)},
-    "town02": {"empty": (0, 0), "regular": (15, 50), "dense": (70, 150)},
 }
 GOAL_DISTANCE_M = 2.0
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any, ClassVar
 
@@ -9,9 +10,10 @@ import gymnasium as gym
 import numpy as np
 
 from brlcli.errors import BrlInputError
-from brlcli.features import STATE_DIM, state_vector
-from brlcli.reward import RewardParams, RouteRewardParams, reward_terms, route_terms
+from brlcli.features import STATE_DIM, STATE_OPTIONS, agent_state
+from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams, hazard_terms, reward_terms, route_terms
 from brlcli.sim.camera import CameraConfig
+from brlcli.sim.hazard import hazard_gap_m
 from brlcli.sim.vehicle import Control
 from brlcli.sim.world import FRAME_DT_S, World
 
@@ -23,6 +25,13 @@ ACTIONS: tuple[Control, ...] = (
     Control(steer=0.0, throttle=0.4, reverse=True),
 )
 ACTION_NAMES = ("forward", "right", "left", "backward")
+STOP = Control(steer=0.0, throttle=0.0, brake=1.0)
+"""A fifth primitive outside the paper (issue 35): no throttle, full brake."""
+ACTION_SETS: dict[str, tuple[Control, ...]] = {"paper": ACTIONS, "stop": (*ACTIONS, STOP)}
+"""Action sets: the paper's four primitives, or those and `stop` (outside the paper)."""
+ACTION_SET_NAMES = {"paper": ACTION_NAMES, "stop": (*ACTION_NAMES, "stop")}
+TRAFFIC_LEVELS = ("empty", "regular", "dense")
+"""Training traffic levels (NoCrash's counts per town, `brlcli.sim.traffic.NOCRASH_TRAFFIC`)."""
 FRAMES_PER_DECISION = 7
 GOAL_TOLERANCE_M = 2.0
 STUCK_SPEED_KMH = 1.0
@@ -58,8 +67,23 @@ class DrivingEnv(gym.Env):
                  labeler: Callable[[np.ndarray], np.ndarray] | None = None, offroad_end: float | None = None,
                  start_offset_m: float = 0.0, start_yaw_deg: float = 0.0,
                  otherlane_end: float | None = None, route_reward: RouteRewardParams | None = None,
-                 junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None) -> None:
+                 junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None,
+                 actions: str = "paper", traffic: tuple[str, ...] = (), hazard: HazardRewardParams | None = None,
+                 state: str = "paper") -> None:
         super().__init__()
+        if actions not in ACTION_SETS:
+            raise BrlInputError(f"unknown action set '{actions}'; choose one of {', '.join(ACTION_SETS)}")
+        if state not in STATE_OPTIONS:
+            raise BrlInputError(f"unknown state option '{state}'; choose one of {', '.join(STATE_OPTIONS)}")
+        bad = [t for t in traffic if t not in TRAFFIC_LEVELS]
+        if bad:
+            raise BrlInputError(f"unknown traffic level '{bad[0]}'; choose from {', '.join(TRAFFIC_LEVELS)}")
+        if traffic and (vehicles or pedestrians):
+            raise BrlInputError("give either traffic levels or vehicle and pedestrian counts, not both")
+        self.actions = ACTION_SETS[actions]
+        self.state_option = state
+        self.hazard = hazard
+        self.traffic_levels = tuple(traffic)
         try:
             self.check_episode_rules(offroad_end, start_offset_m, start_yaw_deg, otherlane_end)
         except ValueError as exc:
@@ -68,7 +92,17 @@ class DrivingEnv(gym.Env):
         self.offroad_end = offroad_end  # end the episode when more than this share of the footprint is off-road
         self.start_offset_m = float(start_offset_m)  # start pose: lateral offset ~ U(-a, a) m
         self.start_yaw_deg = float(start_yaw_deg)  # and heading offset ~ U(-b, b) degrees
-        self.world = World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians, camera=camera)
+        if traffic:  # one world per traffic level; each episode draws its level
+            from brlcli.sim.traffic import NOCRASH_TRAFFIC
+
+            self._worlds = {t: World(town, weather=weather, vehicles=NOCRASH_TRAFFIC[town][t][0],
+                                     pedestrians=NOCRASH_TRAFFIC[town][t][1], camera=camera)
+                            for t in dict.fromkeys(traffic)}
+        else:
+            self._worlds = {"": World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians,
+                                      camera=camera)}
+        self.world = next(iter(self._worlds.values()))
+        self.traffic_level = next(iter(self._worlds))
         if routes == "navigation":
             from brlcli.sim.navroutes import JUNCTION_APPROACHES_M, junction_routes
 
@@ -92,9 +126,11 @@ class DrivingEnv(gym.Env):
         self.reward_params = reward or RewardParams()
         self.labeler = labeler  # RGB -> estimated labels (the paper's "estimated" input); None = ground truth
         self.render_mode = render_mode
-        self.world.rgb_frames = labeler is not None or render_mode == "rgb_array"  # GT states need no RGB image
-        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(STATE_DIM,), dtype=np.float32)
-        self.action_space = gym.spaces.Discrete(len(ACTIONS))
+        for w in self._worlds.values():
+            w.rgb_frames = labeler is not None or render_mode == "rgb_array"  # GT states need no RGB image
+        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(STATE_DIM + STATE_OPTIONS[state],),
+                                                dtype=np.float32)
+        self.action_space = gym.spaces.Discrete(len(self.actions))
         self._rgb: np.ndarray | None = None
 
     @staticmethod
@@ -110,7 +146,7 @@ class DrivingEnv(gym.Env):
     def _observe(self, frame: Any) -> np.ndarray:
         self._rgb = frame.rgb
         labels = frame.labels if self.labeler is None else self.labeler(frame.rgb)
-        self._state = state_vector(labels)
+        self._state = agent_state(labels, frame.depth, self.state_option)
         return self._state.astype(np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
@@ -128,6 +164,9 @@ class DrivingEnv(gym.Env):
             spec = group[int(self.np_random.integers(len(group)))]
         else:
             spec = self.routes[int(self.np_random.integers(len(self.routes)))]
+        if len(self._worlds) > 1:
+            self.traffic_level = self.traffic_levels[int(self.np_random.integers(len(self.traffic_levels)))]
+            self.world = self._worlds[self.traffic_level]
         self.spec_route = spec
         self.route = self.world.network.route(spec.start, spec.goal)
         self.timeout_s = route_timeout_s(self.route.length_m)
@@ -138,17 +177,19 @@ class DrivingEnv(gym.Env):
             start = (start[0] - lateral * np.sin(yaw), start[1] + lateral * np.cos(yaw), start[2] + dyaw)
         frame = self.world.reset(start, seed=int(self.np_random.integers(2**31)))
         self._collision_total = 0.0
+        self._road_user_total = 0.0
         self._stuck_s = 0.0
         m = frame.measurements
         self._route_s, _ = self.route.project(m.x, m.y)
         return self._observe(frame), {"route": spec.name, "route_length_m": self.route.length_m,
-                                      "command": int(self.route.command_at(self._route_s))}
+                                      "command": int(self.route.command_at(self._route_s)),
+                                      **({"traffic": self.traffic_level} if self.traffic_levels else {})}
 
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the action's control for 7 frames, render the last one, and score it."""
         if not self.action_space.contains(action):
-            raise BrlInputError(f"action {action!r} is not one of 0..{len(ACTIONS) - 1}")
-        control = ACTIONS[int(action)]
+            raise BrlInputError(f"action {action!r} is not one of 0..{len(self.actions) - 1}")
+        control = self.actions[int(action)]
         for k in range(FRAMES_PER_DECISION):
             frame = self.world.step(control, render=k == FRAMES_PER_DECISION - 1)
         m = frame.measurements
@@ -156,26 +197,38 @@ class DrivingEnv(gym.Env):
         collided = total > self._collision_total
         self._collision_total = total
         obs = self._observe(frame)
+        hit_road_user = collided and m.collision_vehicles + m.collision_pedestrians > self._road_user_total
+        self._road_user_total = m.collision_vehicles + m.collision_pedestrians
         terms = reward_terms(collided, m.intersection_offroad, m.intersection_otherlane, m.forward_speed_kmh,
-                             self._state, self.reward_params)
+                             self._state[:STATE_DIM], self.reward_params)
+        vt = self.reward_params.target_speed_kmh
+        gap, v_target = math.inf, vt
+        if self.hazard is not None:
+            gap = hazard_gap_m(self.world.traffic, self.route, m.x, m.y, m.yaw_deg)
+            v_target = self.hazard.target_kmh(gap, vt)
+            terms = hazard_terms(m.forward_speed_kmh, gap, terms, self.reward_params, self.hazard)
         s, lateral = self.route.project(m.x, m.y)
         wrong_turn = False
         if self.route_reward is not None:
-            extra = route_terms(s - self._route_s, self.reward_params.target_speed_kmh / 3.6 * FRAMES_PER_DECISION *
-                                FRAME_DT_S, lateral, self.route_reward)
+            expected = v_target / 3.6 * FRAMES_PER_DECISION * FRAME_DT_S
+            extra = route_terms(s - self._route_s, expected, lateral, self.route_reward) if expected > 0 else \
+                {"progress": 0.0, "wrong_turn": route_terms(0.0, 1.0, lateral, self.route_reward)["wrong_turn"]}
             wrong_turn = extra["wrong_turn"] < 0.0
             terms = {**terms, **extra, "total": terms["total"] + extra["progress"] + extra["wrong_turn"]}
         self._route_s = s
         dist_goal = float(np.hypot(m.x - self.route.goal[0], m.y - self.route.goal[1]))
         terminated = dist_goal <= GOAL_TOLERANCE_M or s >= self.route.length_m - GOAL_TOLERANCE_M
+        waiting = v_target < vt  # standing for a hazard is not being stuck
         self._stuck_s = self._stuck_s + FRAMES_PER_DECISION * FRAME_DT_S if abs(m.forward_speed_kmh) < \
-            STUCK_SPEED_KMH else 0.0
+            STUCK_SPEED_KMH and not waiting else 0.0
         left_lane = (self.offroad_end is not None and m.intersection_offroad > self.offroad_end) or \
             (self.otherlane_end is not None and m.intersection_otherlane > self.otherlane_end)
+        crashed = hit_road_user and bool(self.traffic_levels)  # NoCrash: a collision with a road user ends it
         truncated = not terminated and (m.game_time_s >= self.timeout_s or self._stuck_s >= STUCK_TIME_S
-                                        or left_lane or wrong_turn)
+                                        or left_lane or wrong_turn or crashed)
         info = {"reward_terms": terms, "measurements": m.as_dict(), "route_s_m": s, "collided": collided,
-                "left_lane": left_lane, "wrong_turn": wrong_turn, "command": int(self.route.command_at(s))}
+                "left_lane": left_lane, "wrong_turn": wrong_turn, "command": int(self.route.command_at(s)),
+                "crashed": crashed, "hazard_gap_m": gap, "traffic": self.traffic_level}
         return obs, float(terms["total"]), bool(terminated), bool(truncated), info
 
     def render(self) -> np.ndarray | None:
@@ -183,5 +236,6 @@ class DrivingEnv(gym.Env):
         return self._rgb
 
     def close(self) -> None:
-        """Release the world's physics client."""
-        self.world.close()
+        """Release the worlds' physics clients."""
+        for w in self._worlds.values():
+            w.close()

@@ -17,6 +17,11 @@ from brlcli.sim.vehicle import HEIGHT_M, LENGTH_M, WIDTH_M
 
 CORL_TRAFFIC = {"town01": (20, 50), "town02": (15, 50)}
 """(vehicles, pedestrians) of CoRL2017's traffic per town (navigation with dynamic obstacles)."""
+NOCRASH_TRAFFIC = {
+    "town01": {"empty": (0, 0), "regular": (20, 50), "dense": (100, 250)},
+    "town02": {"empty": (0, 0), "regular": (15, 50), "dense": (70, 150)},
+}
+"""(vehicles, pedestrians) of NoCrash's traffic levels per town."""
 VEHICLE_SPEED_KMH = (20.0, 32.0)
 """Range of the traffic vehicles' cruise speeds, km/h (halved on junction connectors)."""
 PEDESTRIAN_SPEED_MS = (0.9, 1.6)

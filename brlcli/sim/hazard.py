@@ -1,0 +1,68 @@
+"""The privileged hazard test shared by the expert (`brlcli.autopilot`) and the traffic-aware training reward: the
+free distance along a planned route to the nearest road user that is on it or about to be."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from brlcli.classes import CarlaClass
+from brlcli.sim.roadnet import Route
+from brlcli.sim.traffic import CAR_CIRCLE_REACH_M, CAR_CIRCLES_M
+from brlcli.sim.vehicle import LENGTH_M
+
+PATH_AHEAD_M = 25.0
+"""How far along its route the expert looks for hazards."""
+PREDICT_S = (0.0, 0.5, 1.0, 1.5, 2.0)
+"""Times (s) at which each road user's position is predicted at its current velocity: a hazard is a road user
+whose current or predicted position lies on the expert's path ahead (crossing traffic at a junction, a pedestrian
+stepping out, an oncoming car across a turn)."""
+CORRIDOR_HALF_M = {"vehicle": 2.1, "pedestrian": 1.5}
+"""Half-width of the path corridor a road user must enter to be a hazard (a car's circle, CAR_CIRCLES_M; a
+pedestrian's centre): the expert's half width, 0.9 m, plus the user's half width and a margin."""
+
+
+def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: float) -> float:
+    """Free distance (m, bumper to the nearest hazard) along `route` ahead of a car at (x, y, yaw); inf when clear.
+
+    Every road user of `traffic` (its `boxes()` and `velocities()`) now and at PREDICT_S at its current velocity is
+    tested against the corridor of the next PATH_AHEAD_M of the route (cars as three circles along their length); a
+    user behind the car moving its way (following traffic) is no hazard. Privileged: the expert's and the training
+    reward's view of traffic, never an agent's input."""
+    boxes = traffic.boxes()
+    if not len(boxes):
+        return math.inf
+    vel = traffic.velocities()
+    # only users that can reach the path within the prediction horizon
+    horizon = PATH_AHEAD_M + CORRIDOR_HALF_M["vehicle"] + LENGTH_M + PREDICT_S[-1] * np.linalg.norm(vel, axis=1)
+    near = np.hypot(boxes[:, 1] - x_m, boxes[:, 2] - y_m) < horizon
+    if not near.any():
+        return math.inf
+    boxes, vel = boxes[near], vel[near]
+    car = boxes[:, 0] == float(CarlaClass.VEHICLES)
+    offsets = np.where(car[:, None], CAR_CIRCLES_M[None, :], 0.0)  # (U, 3)
+    heading = np.column_stack([np.cos(boxes[:, 7]), np.sin(boxes[:, 7])])
+    xy = (boxes[:, None, 1:3] + offsets[:, :, None] * heading[:, None, :]).reshape(-1, 2)
+    vel = np.repeat(vel, 3, axis=0)
+    half = np.repeat(np.where(car, CORRIDOR_HALF_M["vehicle"], CORRIDOR_HALF_M["pedestrian"]), 3)
+    reach = np.repeat(np.where(car, CAR_CIRCLE_REACH_M, boxes[:, 4] / 2), 3)
+    s, _ = route.project(x_m, y_m)
+    d = np.arange(0.0, PATH_AHEAD_M + 0.5, 1.0)
+    q = np.clip(s + d, 0.0, route.cum_s[-1])
+    path = np.column_stack([np.interp(q, route.cum_s, route.points[:, 0]),
+                            np.interp(q, route.cum_s, route.points[:, 1])])
+    yaw = math.radians(yaw_deg)
+    ego_heading = np.array([math.cos(yaw), math.sin(yaw)])
+    rel = np.repeat(boxes[:, 1:3], 3, axis=0) - (x_m, y_m)
+    behind = (rel @ ego_heading < 0.0) & (vel @ ego_heading > 0.5)  # following traffic is no hazard
+    best = math.inf
+    for t in PREDICT_S:
+        p = xy + t * vel  # (3U, 2)
+        dist = np.linalg.norm(p[:, None, :] - path[None, :, :], axis=2)  # (3U, P)
+        hit = (dist < half[:, None]) & ~behind[:, None]
+        if hit.any():
+            users, points = np.nonzero(hit)
+            best = min(best, float((d[points] - LENGTH_M / 2 - reach[users]).min()))
+    return max(best, 0.0) if best < math.inf else math.inf
