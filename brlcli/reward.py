@@ -95,11 +95,19 @@ class HazardRewardParams:
     r_hazard: float = 20.0
     stop_m: float = 4.0
     slow_m: float = 15.0
+    predict_s: float = 0.0
+    """How far ahead (s) road users' positions are predicted for g (0.5 s steps): 0 = where they are now, which the
+    camera can see; the expert's 2 s also counts users that will cross, which the camera state cannot show."""
 
     def __post_init__(self) -> None:
-        if not (self.r_hazard >= 0 and 0 <= self.stop_m < self.slow_m):
-            raise ValueError("r_hazard must be >= 0 and 0 <= stop_m < slow_m, got "
-                             f"{self.r_hazard}, {self.stop_m}, {self.slow_m}")
+        if not (self.r_hazard >= 0 and 0 <= self.stop_m < self.slow_m and 0 <= self.predict_s <= 5):
+            raise ValueError("r_hazard must be >= 0, 0 <= stop_m < slow_m and 0 <= predict_s <= 5, got "
+                             f"{self.r_hazard}, {self.stop_m}, {self.slow_m}, {self.predict_s}")
+
+    @property
+    def predict_times_s(self) -> tuple[float, ...]:
+        """The prediction times of g (s): 0, 0.5, ... up to predict_s."""
+        return tuple(0.5 * k for k in range(round(self.predict_s / 0.5) + 1))
 
     def target_kmh(self, gap_m: float, target_speed_kmh: float) -> float:
         """The hazard-limited target speed v_h (km/h) for a free distance `gap_m` (inf: no hazard)."""

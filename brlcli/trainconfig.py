@@ -119,6 +119,7 @@ class TrainConfig:
     # zero near a road user on the route; 0 = the paper's reward
     hazard_stop_m: float = 4.0
     hazard_slow_m: float = 15.0
+    hazard_predict_s: float = 0.0  # how far ahead the hazard reward predicts road users (s; the expert's: 2)
     state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers) or "nearness" (+3, outside it)
 
     def __post_init__(self) -> None:
@@ -226,7 +227,7 @@ class TrainConfig:
         """The hazard reward terms (None when r_hazard is 0: the paper's reward)."""
         if not self.r_hazard:
             return None
-        return HazardRewardParams(self.r_hazard, self.hazard_stop_m, self.hazard_slow_m)
+        return HazardRewardParams(self.r_hazard, self.hazard_stop_m, self.hazard_slow_m, self.hazard_predict_s)
 
     def camera(self) -> CameraConfig:
         """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""

@@ -294,3 +294,17 @@ def test_a_set_of_committee_members_without_committees_says_how_to_assemble_them
     (tmp_path / "empty").mkdir()
     with pytest.raises(BrlInputError, match=r"holds no model\.npz files"):
         find_models(None, [str(tmp_path / "empty")])
+
+
+def test_the_traffic_validation_suite_is_nav_validation_in_nocrash_traffic() -> None:
+    from brlcli.bench.suites import NOCRASH_TRAFFIC, nocrash_timeout_s
+
+    specs = build_suite("nav_validation_traffic")
+    plain = build_suite("nav_validation")
+    assert len(specs) == 3 * len(plain) and len({s.id for s in specs}) == len(specs)
+    assert {(s.start, s.goal) for s in specs} == {(s.start, s.goal) for s in plain}  # never NoCrash's poses
+    nocrash_poses = {(s.start, s.goal) for s in build_suite("nocrash")}
+    assert not nocrash_poses & {(s.start, s.goal) for s in specs}
+    for s in specs:
+        assert (s.vehicles, s.pedestrians) == NOCRASH_TRAFFIC[s.town][s.task] and s.end_on_collision
+        assert s.timeout_s == nocrash_timeout_s(s.route_length_m)

@@ -466,3 +466,15 @@ def test_setting_labels_name_the_variant() -> None:
     assert setting_name("gt", "estimated") == "TGDE"
     assert setting_name("estimated", "gt", "reference-code") == "TEDG (reference-code)"
     assert base_setting("TEDG (reference-code)") == "TEDG" and base_setting("TGDG") == "TGDG"
+
+
+def test_results_of_an_older_suite_version_are_read_and_labelled(tmp_path: Path, monkeypatch) -> None:
+    from brlcli.bench import suites
+    from brlcli.report.load import load_results
+
+    monkeypatch.setitem(suites.SUITE_VERSION, "paper", 2)
+    monkeypatch.setitem(suites.SUITE_CHANGES, ("paper", 2), "a test change")
+    old = write_results(tmp_path / "old", model_set("TGDG")[:4])
+    results = load_results([old])
+    assert len(results.episodes) == 4
+    assert any("suite version 1, older than this brl's 2 (since then: a test change)" in n for n in results.notes)

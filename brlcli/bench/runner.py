@@ -35,7 +35,7 @@ from brlcli.sim.town import load_town
 from brlcli.sim.vehicle import Control
 from brlcli.sim.world import FRAME_DT_S, World
 
-REPLANNING_SUITES = ("corl2017", "nocrash", "nav_validation")
+REPLANNING_SUITES = ("corl2017", "nocrash", "nav_validation", "nav_validation_traffic")
 """Suites whose route commands are replanned when the car leaves its route (`Navigator`, as CARLA 0.8's planner in
 CoRL2017 and NoCrash); the paper's lane-keeping suites keep the route planned at the start."""
 

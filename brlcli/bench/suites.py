@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+from dataclasses import replace
 
 import numpy as np
 
@@ -14,9 +15,10 @@ from brlcli.sim.town import load_town
 from brlcli.sim.traffic import CORL_TRAFFIC, NOCRASH_TRAFFIC
 from brlcli.sim.weather import TEST_WEATHERS, TRAIN_WEATHERS, get_weather
 
-SUITES = ("paper", "validation", "validation_starts", "corl2017", "nocrash", "nav_validation")
+SUITES = ("paper", "validation", "validation_starts", "corl2017", "nocrash", "nav_validation",
+          "nav_validation_traffic")
 SUITE_VERSION = {"paper": 1, "validation": 1, "validation_starts": 1, "corl2017": 3, "nocrash": 3,
-                 "nav_validation": 2}
+                 "nav_validation": 2, "nav_validation_traffic": 1}
 SUITE_CHANGES = {
     ("corl2017", 2): "route commands replanned when the car leaves its route",
     ("nocrash", 2): "route commands replanned when the car leaves its route",
@@ -177,6 +179,21 @@ def nav_validation_suite(conditions: tuple[str, ...] | None = None,
     return specs
 
 
+def nav_validation_traffic_suite(conditions: tuple[str, ...] | None = None, tasks: tuple[str, ...] | None = None,
+                                 weathers: tuple[int, ...] | None = None) -> list[EpisodeSpec]:
+    """Navigation validation in traffic (issue 35; what traffic models are chosen on, never NoCrash's poses):
+    nav_validation's planner routes x NoCrash's traffic levels (tasks empty, regular, dense), NoCrash's timeout, a
+    collision ends the episode."""
+    specs = []
+    for base in nav_validation_suite(conditions, weathers):
+        for task in tasks or NOCRASH_TASKS:
+            vehicles, pedestrians = NOCRASH_TRAFFIC[base.town][task]
+            specs.append(replace(base, suite="nav_validation_traffic", task=task,
+                                 timeout_s=nocrash_timeout_s(base.route_length_m), vehicles=vehicles,
+                                 pedestrians=pedestrians, end_on_collision=True))
+    return specs
+
+
 def build_suite(suite: str, conditions: str | None = None, tasks: str | None = None,
                 weathers: str | None = None) -> list[EpisodeSpec]:
     """Episode list of a suite, filtered by comma-separated conditions, tasks and weathers (ids or names)."""
@@ -194,6 +211,9 @@ def build_suite(suite: str, conditions: str | None = None, tasks: str | None = N
     if suite == "nav_validation":
         _parse_list(tasks, ("navigation",), "task")
         specs = nav_validation_suite(_parse_list(conditions, tuple(NAV_VALIDATION_CONDITIONS), "condition"), wl)
+    elif suite == "nav_validation_traffic":
+        specs = nav_validation_traffic_suite(_parse_list(conditions, tuple(NAV_VALIDATION_CONDITIONS), "condition"),
+                                             _parse_list(tasks, NOCRASH_TASKS, "task"), wl)
     elif suite == "nocrash":
         conds = _parse_list(conditions, tuple(NOCRASH_CONDITIONS), "condition")
         specs = nocrash_suite(conds, _parse_list(tasks, NOCRASH_TASKS, "task"), wl)

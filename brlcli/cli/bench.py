@@ -24,7 +24,8 @@ from brlcli.cli.common import (
 @app.command()
 def bench(
     suite: Annotated[str, typer.Option(help="paper (lane-keeping table), validation (the paper suite on the towns' "
-                                            "validation routes), corl2017, nocrash or nav_validation.")] = "paper",
+                                            "validation routes), corl2017, nocrash, nav_validation or "
+                                            "nav_validation_traffic.")] = "paper",
     agent: Annotated[str, typer.Option(help="brl (trained models), autopilot (privileged expert), oracle (the "
                                             "expert restricted to the BRL agent's actions), mp (modular pipeline), "
                                             "il (imitation learning), dqn (deep RL).")] = "brl",

@@ -204,7 +204,7 @@ class DrivingEnv(gym.Env):
         vt = self.reward_params.target_speed_kmh
         gap, v_target = math.inf, vt
         if self.hazard is not None:
-            gap = hazard_gap_m(self.world.traffic, self.route, m.x, m.y, m.yaw_deg)
+            gap = hazard_gap_m(self.world.traffic, self.route, m.x, m.y, m.yaw_deg, self.hazard.predict_times_s)
             v_target = self.hazard.target_kmh(gap, vt)
             terms = hazard_terms(m.forward_speed_kmh, gap, terms, self.reward_params, self.hazard)
         s, lateral = self.route.project(m.x, m.y)

@@ -24,10 +24,11 @@ CORRIDOR_HALF_M = {"vehicle": 2.1, "pedestrian": 1.5}
 pedestrian's centre): the expert's half width, 0.9 m, plus the user's half width and a margin."""
 
 
-def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: float) -> float:
+def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: float,
+                 predict_s: tuple[float, ...] = PREDICT_S) -> float:
     """Free distance (m, bumper to the nearest hazard) along `route` ahead of a car at (x, y, yaw); inf when clear.
 
-    Every road user of `traffic` (its `boxes()` and `velocities()`) now and at PREDICT_S at its current velocity is
+    Every road user of `traffic` (its `boxes()` and `velocities()`) at `predict_s` (s) at its current velocity is
     tested against the corridor of the next PATH_AHEAD_M of the route (cars as three circles along their length); a
     user behind the car moving its way (following traffic) is no hazard. Privileged: the expert's and the training
     reward's view of traffic, never an agent's input."""
@@ -36,7 +37,7 @@ def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: fl
         return math.inf
     vel = traffic.velocities()
     # only users that can reach the path within the prediction horizon
-    horizon = PATH_AHEAD_M + CORRIDOR_HALF_M["vehicle"] + LENGTH_M + PREDICT_S[-1] * np.linalg.norm(vel, axis=1)
+    horizon = PATH_AHEAD_M + CORRIDOR_HALF_M["vehicle"] + LENGTH_M + max(predict_s) * np.linalg.norm(vel, axis=1)
     near = np.hypot(boxes[:, 1] - x_m, boxes[:, 2] - y_m) < horizon
     if not near.any():
         return math.inf
@@ -58,7 +59,7 @@ def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: fl
     rel = np.repeat(boxes[:, 1:3], 3, axis=0) - (x_m, y_m)
     behind = (rel @ ego_heading < 0.0) & (vel @ ego_heading > 0.5)  # following traffic is no hazard
     best = math.inf
-    for t in PREDICT_S:
+    for t in predict_s:
         p = xy + t * vel  # (3U, 2)
         dist = np.linalg.norm(p[:, None, :] - path[None, :, :], axis=2)  # (3U, P)
         hit = (dist < half[:, None]) & ~behind[:, None]
