@@ -58,9 +58,11 @@ def state_vector(labels: np.ndarray) -> np.ndarray:
 
 NEARNESS_RANGE_M = 30.0
 """Depth (m) beyond which a road user adds nothing to the nearness state (outside the paper)."""
-STATE_OPTIONS = {"paper": 0, "nearness": 3}
-"""Agent state options (issue 35): the paper's 30 numbers, or those and 3 nearness numbers from the camera's depth
-image (`depth_nearness`; outside the paper). Value: how many numbers the option adds."""
+STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1}
+"""Agent state options (issue 35): the paper's 30 numbers; or those and 3 nearness numbers from the camera's depth
+image (`depth_nearness`), or and the measured forward speed (clip(v / SPEED_SCALE_KMH, 0, 1), so that standing still
+and driving are different states); both outside the paper. Value: how many numbers the option adds."""
+SPEED_SCALE_KMH = 30.0
 
 
 def depth_nearness(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
@@ -74,11 +76,14 @@ def depth_nearness(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
     return np.array([near[:, :c1].max(initial=0.0), near[:, c1:c2].max(initial=0.0), near[:, c2:].max(initial=0.0)])
 
 
-def agent_state(labels: np.ndarray, depth: np.ndarray | None, option: str = "paper") -> np.ndarray:
-    """The agent's state under a state option (STATE_OPTIONS): the 30-vector, with the nearness numbers appended."""
+def agent_state(labels: np.ndarray, depth: np.ndarray | None, option: str = "paper",
+                speed_kmh: float = 0.0) -> np.ndarray:
+    """The agent's state under a state option (STATE_OPTIONS): the 30-vector, with the option's numbers appended."""
     state = state_vector(labels)
     if option == "paper":
         return state
+    if option == "speed":
+        return np.append(state, min(max(speed_kmh / SPEED_SCALE_KMH, 0.0), 1.0))
     if depth is None:
         raise ValueError("the nearness state needs the camera's depth image")
     return np.concatenate([state, depth_nearness(labels, depth)])

@@ -51,3 +51,35 @@ def path_gaps(pose: np.ndarray, path_xy: np.ndarray, obs: np.ndarray, owner: np.
                         gap[v] = g
                     break
     return gap
+
+
+@jit
+def sample_paths(points: np.ndarray, cum: np.ndarray, base: np.ndarray, first: np.ndarray, last: np.ndarray,
+                 lengths: np.ndarray, chain: np.ndarray, s0: np.ndarray, samples_m: np.ndarray) -> np.ndarray:
+    """Positions (V, K, 2) at arc lengths s0 + samples_m along each vehicle's chain of three polylines (V, 3) of a
+    `_PathTable` (points, cumulative lengths, per-polyline base, first and last segment); past the chain's end, its
+    last point."""
+    n_v, n_k = chain.shape[0], samples_m.shape[0]
+    out = np.empty((n_v, n_k, 2))
+    for v in range(n_v):
+        j = 0
+        offset = 0.0  # arc length of the chain before polyline j
+        p = chain[v, 0]
+        k_seg = first[p]
+        for k in range(n_k):
+            s = s0[v] + samples_m[k] - offset
+            while s > lengths[p] and j < 2:
+                offset += lengths[p]
+                s -= lengths[p]
+                j += 1
+                p = chain[v, j]
+                k_seg = first[p]
+            s = min(max(s, 0.0), lengths[p])
+            g = base[p] + s
+            while k_seg < last[p] and cum[k_seg + 1] <= g:
+                k_seg += 1
+            seg = max(cum[k_seg + 1] - cum[k_seg], 1e-9)
+            f = (g - cum[k_seg]) / seg
+            out[v, k, 0] = points[k_seg, 0] + f * (points[k_seg + 1, 0] - points[k_seg, 0])
+            out[v, k, 1] = points[k_seg, 1] + f * (points[k_seg + 1, 1] - points[k_seg, 1])
+    return out

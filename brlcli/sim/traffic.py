@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from brlcli.classes import CarlaClass
-from brlcli.sim._traffic_kernels import path_gaps
+from brlcli.sim._traffic_kernels import path_gaps, sample_paths
 from brlcli.sim.roadnet import RoadNetwork, offset_polyline
 from brlcli.sim.vehicle import HEIGHT_M, LENGTH_M, WIDTH_M
 
@@ -321,8 +321,12 @@ class Traffic:
         active[self.v_path[inside]] = True
         active[self.v_next[self.v_go]] = True
         claimed = np.zeros_like(active)  # connectors a vehicle has waited PATIENCE_S for: no new conflicting entry
-        into = np.where(inside, self._exit_lane[self.v_path], -1)
-        heading = np.where(self.v_go, self._exit_lane[np.maximum(self.v_next, 0)], -1)
+        n_paths = len(self._conflict)
+        into = self._exit_lane[self.v_path[inside]]  # where the vehicles inside the junctions will leave them
+        ahead = self._exit_lane[self.v_next[self.v_go]]  # ... and where the reserved ones will
+        committed = np.bincount(into, minlength=n_paths) + np.bincount(ahead, minlength=n_paths)
+        tail = np.full(n_paths, np.inf)  # arc length of each lane's last vehicle
+        np.minimum.at(tail, self.v_path, self.v_s)
         near = np.flatnonzero(self._ends_at_junction[self.v_path] & (remaining < JUNCTION_APPROACH_M)
                               & ~self.v_go & ~self.v_held)
         waiting_head: set[int] = set()
@@ -333,10 +337,7 @@ class Traffic:
                 out[i] = remaining[i] - LENGTH_M / 2 + STANDSTILL_GAP_M
                 continue
             exit_lane = self._exit_lane[conn]
-            on_exit = self.v_path == exit_lane
-            tail_s = float(self.v_s[on_exit].min()) if on_exit.any() else np.inf
-            committed = int(((into == exit_lane) | (heading == exit_lane)).sum())
-            room = tail_s >= SLOT_M * (committed + 1) + LENGTH_M / 2
+            room = tail[exit_lane] >= SLOT_M * (committed[exit_lane] + 1) + LENGTH_M / 2
             node = int(self._path_to[lane])
             ego_inside = np.hypot(ego_x - self._node_xy[node, 0], ego_y - self._node_xy[node, 1]) \
                 < self._node_radius[node]
@@ -344,7 +345,7 @@ class Traffic:
             if room and clear and not ego_inside:
                 self.v_go[i] = True
                 active[conn] = True
-                heading[i] = exit_lane
+                committed[exit_lane] += 1
                 self.v_wait_s[i] = 0.0
             else:
                 out[i] = remaining[i] - LENGTH_M / 2 + STANDSTILL_GAP_M  # stop with the front bumper at the lane end
@@ -357,15 +358,10 @@ class Traffic:
 
     def _path_samples(self) -> np.ndarray:
         """Per vehicle: its path points (V, K, 2) at PATH_SAMPLES_M ahead, over its path, the next and the one after."""
-        s = self.v_s[:, None] + PATH_SAMPLES_M[None, :]
-        p0 = self.v_path
-        p1 = np.where(self.v_next >= 0, self.v_next, self._first_successor[p0])
-        p2 = self._first_successor[p1]
-        l0, l1 = self._paths.lengths[p0][:, None], self._paths.lengths[p1][:, None]
-        path = np.where(s <= l0, p0[:, None], np.where(s <= l0 + l1, p1[:, None], p2[:, None]))
-        s = np.where(s <= l0, s, np.where(s <= l0 + l1, s - l0, s - l0 - l1))
-        x, y, _ = self._paths.pose(path.ravel(), s.ravel())
-        return np.stack([x, y], axis=1).reshape(*path.shape, 2)
+        p1 = np.where(self.v_next >= 0, self.v_next, self._first_successor[self.v_path])
+        chain = np.column_stack([self.v_path, p1, self._first_successor[p1]])
+        t = self._paths
+        return sample_paths(t.points, t.cum, t.base, t.first, t.last, t.lengths, chain, self.v_s, PATH_SAMPLES_M)
 
     def _step_pedestrians(self, dt_s: float) -> None:
         walking = (~self.p_held) & (self.p_cross < 0)
