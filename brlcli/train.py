@@ -48,13 +48,13 @@ LOG_COLUMNS = (
     "r_progress", "r_wrong_turn",
 )
 """Columns of log.csv, one row per learning step (`log_row`)."""
-TRAFFIC_LOG_COLUMNS = ("r_hazard", "hazard_gap_m", "crashed", "traffic")
+TRAFFIC_LOG_COLUMNS = ("r_hazard", "hazard_gap_m", "crashed", "traffic")  # r_hazard includes r_stand
 """Columns log.csv adds for a run with traffic or the hazard reward (outside the paper)."""
 
 
 def log_columns(cfg: TrainConfig) -> tuple[str, ...]:
     """The log.csv columns of a run: LOG_COLUMNS, and TRAFFIC_LOG_COLUMNS with traffic or the hazard reward."""
-    return LOG_COLUMNS + (TRAFFIC_LOG_COLUMNS if cfg.traffic or cfg.r_hazard else ())
+    return LOG_COLUMNS + (TRAFFIC_LOG_COLUMNS if cfg.traffic or cfg.r_hazard or cfg.r_stand else ())
 CHECKPOINT_VERSION = 1
 RESTART_CHECKS = (1 / 3, 2 / 3)
 """Fractions of an attempt's learning steps after which the trap test of `TrainConfig.restart_below` runs (at the
@@ -491,7 +491,8 @@ def log_row(run: Run, decision: int, action: int, reward: float, learned: LearnS
             "forward_speed_kmh": m["forward_speed_kmh"], "intersection_offroad": m["intersection_offroad"],
             "intersection_otherlane": m["intersection_otherlane"], "x": m["x"], "y": m["y"],
             "attempt": run.stats.attempt, "command": command, "r_progress": terms.get("progress", 0.0),
-            "r_wrong_turn": terms.get("wrong_turn", 0.0), "r_hazard": terms.get("hazard", 0.0),
+            "r_wrong_turn": terms.get("wrong_turn", 0.0),
+            "r_hazard": terms.get("hazard", 0.0) + terms.get("stand", 0.0),
             "hazard_gap_m": min(float(info.get("hazard_gap_m", np.inf)), 1e3),
             "crashed": int(info.get("crashed", False)), "traffic": info.get("traffic", "")}
 
@@ -582,7 +583,8 @@ def make_env(cfg: TrainConfig) -> DrivingEnv:
                       start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end,
                       route_reward=cfg.route_reward(), junction_weight=cfg.junction_weight if nav else None,
                       junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None,
-                      actions=cfg.actions, traffic=tuple(cfg.traffic), hazard=cfg.hazard_reward(), state=cfg.state)
+                      actions=cfg.actions, traffic=tuple(cfg.traffic), hazard=cfg.hazard_reward(), state=cfg.state,
+                      r_stand=cfg.r_stand)
 
 
 def greedy_policy(model: Any, task: str, setting: str, labels: Callable[[np.ndarray], np.ndarray] | None,

@@ -120,6 +120,7 @@ class TrainConfig:
     hazard_stop_m: float = 4.0
     hazard_slow_m: float = 15.0
     hazard_predict_s: float = 0.0  # how far ahead the hazard reward predicts road users (s; the expert's: 2)
+    r_stand: float = 0.0  # outside the paper: cost per decision of standing still (< 1 km/h) with no hazard ahead
     state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers) or "nearness" (+3, outside it)
 
     def __post_init__(self) -> None:
@@ -160,6 +161,8 @@ class TrainConfig:
             raise BrlInputError(f"unknown action set '{self.actions}'; choose one of {', '.join(ACTION_SETS)}")
         if self.state not in STATE_OPTIONS:
             raise BrlInputError(f"unknown state option '{self.state}'; choose one of {', '.join(STATE_OPTIONS)}")
+        if not (isinstance(self.r_stand, int | float) and self.r_stand >= 0):
+            raise BrlInputError(f"r_stand must be >= 0, got {self.r_stand!r}")
         if not isinstance(self.traffic, list) or any(t not in TRAFFIC_LEVELS for t in self.traffic):
             raise BrlInputError(f"traffic must be a list of levels from {', '.join(TRAFFIC_LEVELS)}, got "
                                 f"{self.traffic!r}")

@@ -146,3 +146,15 @@ def test_unknown_traffic_options_are_one_line_errors() -> None:
                           ({"traffic": ("dense",), "vehicles": 3}, "not both")):
         with pytest.raises(BrlInputError, match=match):
             DrivingEnv(town="town01", **kwargs)
+
+
+def test_standing_where_nothing_is_ahead_costs_r_stand() -> None:
+    env = DrivingEnv(town="town01", routes="navigation", actions="stop", r_stand=50.0)
+    env.reset(seed=4)
+    *_, info = env.step(4)
+    assert info["reward_terms"]["stand"] == -50.0
+    *_, info = env.step(0)
+    assert "stand" not in info["reward_terms"]
+    env.close()
+    with pytest.raises(BrlInputError, match="r_stand"):
+        DrivingEnv(town="town01", r_stand=-1.0)

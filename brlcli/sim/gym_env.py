@@ -69,7 +69,7 @@ class DrivingEnv(gym.Env):
                  otherlane_end: float | None = None, route_reward: RouteRewardParams | None = None,
                  junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None,
                  actions: str = "paper", traffic: tuple[str, ...] = (), hazard: HazardRewardParams | None = None,
-                 state: str = "paper") -> None:
+                 state: str = "paper", r_stand: float = 0.0) -> None:
         super().__init__()
         if actions not in ACTION_SETS:
             raise BrlInputError(f"unknown action set '{actions}'; choose one of {', '.join(ACTION_SETS)}")
@@ -81,6 +81,9 @@ class DrivingEnv(gym.Env):
         if traffic and (vehicles or pedestrians):
             raise BrlInputError("give either traffic levels or vehicle and pedestrian counts, not both")
         self.actions = ACTION_SETS[actions]
+        if not r_stand >= 0:
+            raise BrlInputError(f"r_stand must be >= 0, got {r_stand}")
+        self.r_stand = float(r_stand)  # outside the paper: the cost per decision of standing where nothing is ahead
         self.state_option = state
         self.hazard = hazard
         self.traffic_levels = tuple(traffic)
@@ -207,6 +210,8 @@ class DrivingEnv(gym.Env):
             gap = hazard_gap_m(self.world.traffic, self.route, m.x, m.y, m.yaw_deg, self.hazard.predict_times_s)
             v_target = self.hazard.target_kmh(gap, vt)
             terms = hazard_terms(m.forward_speed_kmh, gap, terms, self.reward_params, self.hazard)
+        if self.r_stand and v_target >= vt and abs(m.forward_speed_kmh) < STUCK_SPEED_KMH:
+            terms = {**terms, "stand": -self.r_stand, "total": terms["total"] - self.r_stand}
         s, lateral = self.route.project(m.x, m.y)
         wrong_turn = False
         if self.route_reward is not None:
