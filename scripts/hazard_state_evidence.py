@@ -16,10 +16,10 @@ balanced accuracy for each feature set.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -30,6 +30,7 @@ from scipy.stats import rankdata
 from brlcli.autopilot import Autopilot
 from brlcli.bench.suites import NOCRASH_TRAFFIC
 from brlcli.features import depth_nearness, state_vector
+from brlcli.provenance import atomic_write_json
 from brlcli.sim import World
 from brlcli.sim.gym_env import FRAMES_PER_DECISION
 
@@ -134,8 +135,7 @@ def main() -> None:
         out["sets"][name] = {"auc": auc, "balanced_accuracy": bacc}
         print(f"{name:50s} AUC {auc:.3f}  balanced accuracy {bacc:.3f}")
     if args.out:
-        with open(args.out, "w") as fh:
-            json.dump(out, fh, indent=2)
+        atomic_write_json(Path(args.out), out)
 
 
 if __name__ == "__main__":

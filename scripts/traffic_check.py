@@ -11,15 +11,16 @@ vehicle's body, and the share of vehicles standing (< 0.1 m/s) over the episode'
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
 from brlcli.bench.suites import NOCRASH_TRAFFIC
+from brlcli.provenance import atomic_write_json
 from brlcli.sim import RoadNetwork, load_town
 from brlcli.sim.traffic import Traffic
 from brlcli.sim.vehicle import LENGTH_M, WIDTH_M
@@ -66,8 +67,7 @@ def main() -> None:
                   f"pedestrian-vehicle contact in {pv}; vehicles standing over the last 10 s: mean "
                   f"{np.mean(standing):.0%}, worst episode {max(standing):.0%}", flush=True)
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(out, fh, indent=2)
+        atomic_write_json(Path(args.json), out)
 
 
 if __name__ == "__main__":

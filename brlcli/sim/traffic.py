@@ -8,6 +8,8 @@ random choice comes from the generator handed to `Traffic.reset`.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from brlcli.classes import CarlaClass
@@ -257,13 +259,16 @@ class Traffic:
     def step(self, dt_s: float, ego_x_m: float, ego_y_m: float, ego_yaw_rad: float | None = None) -> None:
         """Advance every agent by `dt_s` seconds; the ego car at (x, y) is an obstacle for the vehicles and pedestrians
         (its heading, when not given, is taken from its motion)."""
-        moved = np.hypot(ego_x_m - self._ego[0], ego_y_m - self._ego[1])
+        if not (self.n_vehicles or self.n_pedestrians):
+            return
+        ex, ey = float(self._ego[0]), float(self._ego[1])
+        moved = math.hypot(ego_x_m - ex, ego_y_m - ey)  # nan after a reset
         self._ego_speed = moved / dt_s if 1e-6 < moved < 10.0 else 0.0  # a jump is a reset, not a speed
         if ego_yaw_rad is not None:
             self._ego_yaw = float(ego_yaw_rad)
         elif self._ego_speed > 0.0:
-            self._ego_yaw = float(np.arctan2(ego_y_m - self._ego[1], ego_x_m - self._ego[0]))
-        self._ego[:] = (ego_x_m, ego_y_m)
+            self._ego_yaw = math.atan2(ego_y_m - ey, ego_x_m - ex)
+        self._ego[0], self._ego[1] = ego_x_m, ego_y_m
         if self.n_vehicles:
             self._step_vehicles(dt_s, ego_x_m, ego_y_m)
         if self.n_pedestrians:
