@@ -74,9 +74,9 @@ class RouteRewardParams:
 
 
 def route_terms(progress_m: float, expected_m: float, lateral_m: float, params: RouteRewardParams) -> dict[str, float]:
-    """The route-following terms of one decision: progress (ds vs. the target speed's) and the wrong-turn penalty
-    (RouteRewardParams)."""
-    shortfall = min(max(1.0 - progress_m / expected_m, 0.0), 2.0)
+    """The route-following terms of one decision: progress (ds vs. the target speed's; none expected, none owed) and
+    the wrong-turn penalty (RouteRewardParams)."""
+    shortfall = min(max(1.0 - progress_m / expected_m, 0.0), 2.0) if expected_m > 0 else 0.0
     wrong = abs(lateral_m) > params.wrong_turn_m
     return {"progress": -params.r_progress * shortfall, "wrong_turn": -params.r_wrong_turn if wrong else 0.0}
 

@@ -13,12 +13,11 @@ from typing import Any
 from brlcli.agent import BRLParams
 from brlcli.config import Layer, check_known_keys, merge_layer, resolve
 from brlcli.errors import BrlInputError
-from brlcli.features import STATE_OPTIONS
 from brlcli.retired import RETIRED_CONFIG, RETIRED_PARAMS, drop_retired, refuse_retired
 from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams
 from brlcli.segnet import check_input_source
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import ACTION_SETS, TRAFFIC_LEVELS, DrivingEnv
+from brlcli.sim.gym_env import DrivingEnv
 from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
 from brlcli.sim.weather import get_weather
 
@@ -121,7 +120,7 @@ class TrainConfig:
     hazard_slow_m: float = 15.0
     hazard_predict_s: float = 0.0  # how far ahead the hazard reward predicts road users (s; the expert's: 2)
     r_stand: float = 0.0  # outside the paper: cost per decision of standing still (< 1 km/h) with no hazard ahead
-    state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers) or "nearness" (+3, outside it)
+    state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers), "nearness" or "speed" (outside it)
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
@@ -157,16 +156,8 @@ class TrainConfig:
             raise BrlInputError("--curve-every must be >= 0")
         if self.max_restarts < 0:
             raise BrlInputError("max_restarts must be >= 0")
-        if self.actions not in ACTION_SETS:
-            raise BrlInputError(f"unknown action set '{self.actions}'; choose one of {', '.join(ACTION_SETS)}")
-        if self.state not in STATE_OPTIONS:
-            raise BrlInputError(f"unknown state option '{self.state}'; choose one of {', '.join(STATE_OPTIONS)}")
-        if not (isinstance(self.r_stand, int | float) and self.r_stand >= 0):
-            raise BrlInputError(f"r_stand must be >= 0, got {self.r_stand!r}")
-        if not isinstance(self.traffic, list) or any(t not in TRAFFIC_LEVELS for t in self.traffic):
-            raise BrlInputError(f"traffic must be a list of levels from {', '.join(TRAFFIC_LEVELS)}, got "
-                                f"{self.traffic!r}")
         try:
+            DrivingEnv.check_traffic_options(self.actions, self.traffic, self.state, self.r_stand)
             self.reward_params()
             self.route_reward()
             self.hazard_reward()

@@ -142,7 +142,7 @@ def test_hitting_a_road_user_ends_a_traffic_episode(traffic_env: DrivingEnv) -> 
 
 def test_unknown_traffic_options_are_one_line_errors() -> None:
     for kwargs, match in (({"actions": "brake"}, "action set"), ({"state": "depth"}, "state option"),
-                          ({"traffic": ("heavy",)}, "traffic level"),
+                          ({"traffic": ("heavy",)}, "traffic must be a list of levels"),
                           ({"traffic": ("dense",), "vehicles": 3}, "not both")):
         with pytest.raises(BrlInputError, match=match):
             DrivingEnv(town="town01", **kwargs)

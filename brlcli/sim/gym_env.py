@@ -71,18 +71,13 @@ class DrivingEnv(gym.Env):
                  actions: str = "paper", traffic: tuple[str, ...] = (), hazard: HazardRewardParams | None = None,
                  state: str = "paper", r_stand: float = 0.0) -> None:
         super().__init__()
-        if actions not in ACTION_SETS:
-            raise BrlInputError(f"unknown action set '{actions}'; choose one of {', '.join(ACTION_SETS)}")
-        if state not in STATE_OPTIONS:
-            raise BrlInputError(f"unknown state option '{state}'; choose one of {', '.join(STATE_OPTIONS)}")
-        bad = [t for t in traffic if t not in TRAFFIC_LEVELS]
-        if bad:
-            raise BrlInputError(f"unknown traffic level '{bad[0]}'; choose from {', '.join(TRAFFIC_LEVELS)}")
+        try:
+            self.check_traffic_options(actions, traffic, state, r_stand)
+        except ValueError as exc:
+            raise BrlInputError(str(exc)) from None
         if traffic and (vehicles or pedestrians):
             raise BrlInputError("give either traffic levels or vehicle and pedestrian counts, not both")
         self.actions = ACTION_SETS[actions]
-        if not r_stand >= 0:
-            raise BrlInputError(f"r_stand must be >= 0, got {r_stand}")
         self.r_stand = float(r_stand)  # outside the paper: the cost per decision of standing where nothing is ahead
         self.state_option = state
         self.hazard = hazard
@@ -145,6 +140,19 @@ class DrivingEnv(gym.Env):
                 raise ValueError(f"{name} must lie in [0, 1], got {value}")
         if not (start_offset_m >= 0 and start_yaw_deg >= 0):
             raise ValueError(f"start_offset_m and start_yaw_deg must be >= 0, got {start_offset_m}, {start_yaw_deg}")
+
+    @staticmethod
+    def check_traffic_options(actions: str, traffic: Any, state: str, r_stand: float) -> None:
+        """ValueError unless the action set, the traffic levels (a list or tuple), the state option and r_stand >= 0
+        are ones this environment knows (issue 35's options, outside the paper)."""
+        if actions not in ACTION_SETS:
+            raise ValueError(f"unknown action set '{actions}'; choose one of {', '.join(ACTION_SETS)}")
+        if state not in STATE_OPTIONS:
+            raise ValueError(f"unknown state option '{state}'; choose one of {', '.join(STATE_OPTIONS)}")
+        if not isinstance(traffic, list | tuple) or any(t not in TRAFFIC_LEVELS for t in traffic):
+            raise ValueError(f"traffic must be a list of levels from {', '.join(TRAFFIC_LEVELS)}, got {traffic!r}")
+        if isinstance(r_stand, bool) or not isinstance(r_stand, int | float) or not r_stand >= 0:
+            raise ValueError(f"r_stand must be >= 0, got {r_stand!r}")
 
     def _observe(self, frame: Any) -> np.ndarray:
         self._rgb = frame.rgb
@@ -216,8 +224,7 @@ class DrivingEnv(gym.Env):
         wrong_turn = False
         if self.route_reward is not None:
             expected = v_target / 3.6 * FRAMES_PER_DECISION * FRAME_DT_S
-            extra = route_terms(s - self._route_s, expected, lateral, self.route_reward) if expected > 0 else \
-                {"progress": 0.0, "wrong_turn": route_terms(0.0, 1.0, lateral, self.route_reward)["wrong_turn"]}
+            extra = route_terms(s - self._route_s, expected, lateral, self.route_reward)
             wrong_turn = extra["wrong_turn"] < 0.0
             terms = {**terms, **extra, "total": terms["total"] + extra["progress"] + extra["wrong_turn"]}
         self._route_s = s

@@ -10,7 +10,7 @@ import numpy as np
 
 from brlcli.classes import CarlaClass
 from brlcli.sim.roadnet import Route
-from brlcli.sim.traffic import CAR_CIRCLE_REACH_M, CAR_CIRCLES_M
+from brlcli.sim.traffic import CAR_CIRCLE_REACH_M, CAR_CIRCLES_M, car_circles
 from brlcli.sim.vehicle import LENGTH_M
 
 PATH_AHEAD_M = 25.0
@@ -43,12 +43,12 @@ def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: fl
         return math.inf
     boxes, vel = boxes[near], vel[near]
     car = boxes[:, 0] == float(CarlaClass.VEHICLES)
-    offsets = np.where(car[:, None], CAR_CIRCLES_M[None, :], 0.0)  # (U, 3)
-    heading = np.column_stack([np.cos(boxes[:, 7]), np.sin(boxes[:, 7])])
-    xy = (boxes[:, None, 1:3] + offsets[:, :, None] * heading[:, None, :]).reshape(-1, 2)
-    vel = np.repeat(vel, 3, axis=0)
-    half = np.repeat(np.where(car, CORRIDOR_HALF_M["vehicle"], CORRIDOR_HALF_M["pedestrian"]), 3)
-    reach = np.repeat(np.where(car, CAR_CIRCLE_REACH_M, boxes[:, 4] / 2), 3)
+    # cars as their three circles, pedestrians as one point; `user` maps each point to its row
+    user = np.concatenate([np.repeat(np.flatnonzero(car), len(CAR_CIRCLES_M)), np.flatnonzero(~car)])
+    xy = np.concatenate([car_circles(boxes[car, 1:3], boxes[car, 7]), boxes[~car, 1:3]])
+    vel = vel[user]
+    half = np.where(car, CORRIDOR_HALF_M["vehicle"], CORRIDOR_HALF_M["pedestrian"])[user]
+    reach = np.where(car, CAR_CIRCLE_REACH_M, boxes[:, 4] / 2)[user]
     s, _ = route.project(x_m, y_m)
     d = np.arange(0.0, PATH_AHEAD_M + 0.5, 1.0)
     q = np.clip(s + d, 0.0, route.cum_s[-1])
@@ -56,14 +56,14 @@ def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: fl
                             np.interp(q, route.cum_s, route.points[:, 1])])
     yaw = math.radians(yaw_deg)
     ego_heading = np.array([math.cos(yaw), math.sin(yaw)])
-    rel = np.repeat(boxes[:, 1:3], 3, axis=0) - (x_m, y_m)
+    rel = boxes[user, 1:3] - (x_m, y_m)
     behind = (rel @ ego_heading < 0.0) & (vel @ ego_heading > 0.5)  # following traffic is no hazard
     best = math.inf
     for t in predict_s:
-        p = xy + t * vel  # (3U, 2)
-        dist = np.linalg.norm(p[:, None, :] - path[None, :, :], axis=2)  # (3U, P)
+        p = xy + t * vel  # (points, 2)
+        dist = np.linalg.norm(p[:, None, :] - path[None, :, :], axis=2)  # (points, P)
         hit = (dist < half[:, None]) & ~behind[:, None]
         if hit.any():
-            users, points = np.nonzero(hit)
-            best = min(best, float((d[points] - LENGTH_M / 2 - reach[users]).min()))
+            rows, points = np.nonzero(hit)
+            best = min(best, float((d[points] - LENGTH_M / 2 - reach[rows]).min()))
     return max(best, 0.0) if best < math.inf else math.inf

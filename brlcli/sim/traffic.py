@@ -43,6 +43,13 @@ CAR_CIRCLES_M = np.array([-1.5, 0.0, 1.5])
 ego car in a turn) blocks the path its body covers, not only its centre's."""
 CAR_CIRCLE_REACH_M = LENGTH_M / 2 - 1.5
 """How far a car's body reaches beyond its end circles along its heading (m)."""
+
+
+def car_circles(xy: np.ndarray, yaw_rad: np.ndarray) -> np.ndarray:
+    """Centres (N * 3, 2) of the CAR_CIRCLES_M circles of N cars at `xy` (N, 2) heading `yaw_rad` (N,), car-major."""
+    heading = np.column_stack([np.cos(yaw_rad), np.sin(yaw_rad)])
+    return (xy[:, None, :] + CAR_CIRCLES_M[None, :, None] * heading[:, None, :]).reshape(-1, 2)
+
 JUNCTION_APPROACH_M = 15.0
 """Junction right of way (brl's rule in place of CARLA 0.8's traffic lights; docs/simulator.md): a vehicle this close
 to the end of its lane reserves the turn it drew (when the junction came LOOKAHEAD_M ahead) if no conflicting turn
@@ -281,9 +288,7 @@ class Traffic:
         V = self.n_vehicles
         # vehicles (and the ego car) as three circles along their length, pedestrians as one
         car_xy = np.concatenate([pose[:, :2], self._ego[None, :]])
-        car_yaw = np.append(pose[:, 2], self._ego_yaw)
-        heading = np.column_stack([np.cos(car_yaw), np.sin(car_yaw)])
-        circles = (car_xy[:, None, :] + CAR_CIRCLES_M[None, :, None] * heading[:, None, :]).reshape(-1, 2)
+        circles = car_circles(car_xy, np.append(pose[:, 2], self._ego_yaw))
         obs = np.concatenate([circles, self.p_pose[:, :2]])
         n_circles = len(circles)
         owner = np.concatenate([np.repeat(np.arange(V + 1), len(CAR_CIRCLES_M)), np.full(self.n_pedestrians, -1)])
@@ -298,7 +303,6 @@ class Traffic:
         ds[(self.v_path[None, :] != self.v_path[:, None]) | (ds <= 0.0)] = np.inf
         gap = np.minimum(gap, ds.min(axis=1) - LENGTH_M)
         gap = np.minimum(gap, junction_gap)
-        self.v_gap = gap  # free distance ahead (m), for inspection
         cruise = np.where(self._is_connector[self.v_path], 0.5 * self.v_cruise, self.v_cruise)
         desired = np.clip((gap - STANDSTILL_GAP_M) / HEADWAY_S, 0.0, cruise)
         self.v_speed += np.clip(desired - self.v_speed, -7.0 * dt_s, 2.5 * dt_s)
@@ -376,7 +380,6 @@ class Traffic:
         self.p_dir[turn] *= -1.0
         self.p_s[:] = np.clip(self.p_s, 0, length)
         crossing = (~self.p_held) & (self.p_cross >= 0)
-        cars = np.concatenate([self.v_pose[:, :2], self._ego[None, :]])
         if crossing.any():
             dist = np.maximum(np.linalg.norm(self.p_to - self.p_from, axis=1), 1e-6)
             ahead = self.p_pose[:, :2] + 0.8 * (self.p_to - self.p_from) / dist[:, None]
@@ -403,6 +406,7 @@ class Traffic:
                 self.p_cross[done] = -1.0
         draws = self._rng.uniform(size=self.n_pedestrians)
         start = walking & (draws < CROSS_RATE_PER_S * dt_s) & (self.p_s > 10) & (self.p_s < length - 10)
+        cars = np.concatenate([self.v_pose[:, :2], self._ego[None, :]]) if start.any() else None
         for i in np.flatnonzero(start):
             other = int(self.p_walk[i] ^ 1)
             frac = self.p_s[i] / self._walks.lengths[self.p_walk[i]]
