@@ -24,7 +24,7 @@ from brlcli.retired import RETIRED_CONFIG, retired_message
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.settings import setting_name
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import ACTION_SETS, ACTIONS, FRAMES_PER_DECISION, STOP
+from brlcli.sim.gym_env import ACTION_SETS, ACTIONS, FRAMES_PER_DECISION, GATE_DRIVER_ACTIONS, STOP
 from brlcli.sim.vehicle import Control
 
 if TYPE_CHECKING:
@@ -184,6 +184,9 @@ class BRLPolicy(StatePolicy):
         self.agent = load_navigation_agent(model) if command else load_lane_keeping_agent(model)
         config = _training_config(Path(model))
         actions, state = str(config.get("actions", "paper")), str(config.get("state", "paper"))
+        gated = bool(config.get("brake_gate_steps") or config.get("driver_model"))
+        if gated and actions in GATE_DRIVER_ACTIONS:  # a brake gate's driver set and `stop`
+            actions = GATE_DRIVER_ACTIONS[actions]
         if actions not in ACTION_SETS or state not in STATE_OPTIONS:
             raise BrlInputError(f"model {model}: its config.json names action set '{actions}' and state '{state}', "
                                 f"which this brl does not know ({', '.join(ACTION_SETS)}; {', '.join(STATE_OPTIONS)})")
@@ -198,7 +201,8 @@ class BRLPolicy(StatePolicy):
         self.variant = model_variant(Path(model))
         label = self.variant if self.task == "lane-keeping" else f"{self.variant}, navigation"
         if self.task == "navigation":
-            label += ", stop primitive" if actions == "stop" else ", no brake"
+            label += ", fine steering" if actions.startswith("fine") else ""
+            label += ", brake gate" if gated else ", stop primitive" if actions == "stop" else ", no brake"
         if state != "paper":
             label += f", {state} state"
         super().__init__(name, setting_name(model_training_input(Path(model)), deploy, label),
@@ -240,7 +244,8 @@ expert wants to stand still (an obstacle ahead, the goal)."""
 class OraclePolicy(AutopilotPolicy):
     """The privileged expert restricted to the BRL agent's action primitives (its steering quantised to forward,
     right or left: the nearest of 0 and +-`turn_steer`) and to a decision every `decision_frames` frames: whether
-    the agent's action set can drive a route at all (issue 20's feasibility check). The paper's primitives cannot
+    the agent's action set can drive a route at all (issue 20's feasibility check; a list of `turn_steer` values gives
+    a finer steering set, +-each, issue 35's check). The paper's primitives cannot
     brake, so the oracle does not stop for traffic unless `backward_brake` takes `backward` (reverse throttle) while
     the expert brakes and the car rolls forward, or `stop` adds a fifth primitive (no throttle, full brake; outside
     the paper), taken whenever the expert brakes (`stop="braking"`) or only when it wants to stand still, for an
@@ -250,18 +255,20 @@ class OraclePolicy(AutopilotPolicy):
     needs_camera = False
 
     def __init__(self, name: str = "oracle", decision_frames: int = FRAMES_PER_DECISION,
-                 turn_steer: float = float(ACTIONS[1].steer), stop: str = "never",
+                 turn_steer: float | list[float] = float(ACTIONS[1].steer), stop: str = "never",
                  backward_brake: bool = False) -> None:
         super().__init__(name)
         if isinstance(decision_frames, bool) or not isinstance(decision_frames, int) or decision_frames < 1:
             raise BrlInputError(f"oracle decision_frames must be a positive integer, got {decision_frames!r}")
-        if not 0.0 < turn_steer <= 1.0:
-            raise BrlInputError(f"oracle turn_steer must lie in (0, 1], got {turn_steer!r}")
+        steers = [turn_steer] if isinstance(turn_steer, int | float) else list(turn_steer)
+        if not steers or any(isinstance(t, bool) or not isinstance(t, int | float) or not 0.0 < t <= 1.0
+                             for t in steers):
+            raise BrlInputError(f"oracle turn_steer must lie in (0, 1] (or be a list of such), got {turn_steer!r}")
         self.frames_per_decision = decision_frames
-        forward, right, left = ACTIONS[0], ACTIONS[1], ACTIONS[2]
-        self._primitives = (forward, Control(steer=turn_steer, throttle=right.throttle),
-                            Control(steer=-turn_steer, throttle=left.throttle))
-        self._steers = np.array([0.0, turn_steer, -turn_steer])
+        forward, right = ACTIONS[0], ACTIONS[1]
+        self._primitives = (forward, *(Control(steer=sign * float(t), throttle=right.throttle)
+                                       for t in steers for sign in (1.0, -1.0)))
+        self._steers = np.array([p.steer for p in self._primitives])
         if stop not in ORACLE_STOPS:
             raise BrlInputError(f"oracle stop must be one of {', '.join(ORACLE_STOPS)}, got {stop!r}")
         self._stop = stop

@@ -120,15 +120,36 @@ class LaneKeepingLearner:
 
 
 def new_learner(cfg: TrainConfig) -> Learner:
-    """A fresh learner for this run: the paper's agent, or the command-conditioned one for navigation."""
+    """A fresh learner for this run: the paper's agent, the command-conditioned one for navigation, or a brake gate
+    over its frozen driver."""
     dim, n_actions = STATE_DIM + STATE_OPTIONS[cfg.state], len(ACTION_SETS[cfg.actions])
+    if cfg.driver_model is not None:
+        return _new_gate(cfg, dim, n_actions)
     if cfg.task == "navigation":
         return CommandAgent(state_dim=dim, n_actions=n_actions, params=cfg.agent_params())
     return LaneKeepingLearner(BayesianAgent(state_dim=dim, n_actions=n_actions, params=cfg.agent_params()))
 
 
+def _new_gate(cfg: TrainConfig, dim: int, n_actions: int) -> Learner:
+    """A fresh brake gate over the run's driver (BrlInputError for a driver of another state size or action set)."""
+    from brlcli.agent.command import CommandAgent, CommitteeAgent, load_navigation_agent
+    from brlcli.agent.gate import BrakeGatedAgent
+
+    driver = load_navigation_agent(cfg.driver_model)  # type: ignore[arg-type]
+    if not isinstance(driver, CommandAgent | CommitteeAgent):
+        raise BrlInputError(f"driver_model {cfg.driver_model} is already brake-gated; give its driver")
+    if (driver.state_dim, driver.n_actions) != (dim, n_actions):
+        raise BrlInputError(f"driver_model {cfg.driver_model} has state size {driver.state_dim} and {driver.n_actions} "
+                            f"actions, but state '{cfg.state}' and actions '{cfg.actions}' need {dim} and {n_actions}")
+    return BrakeGatedAgent(driver, params=cfg.agent_params(), gate_state=cfg.gate_state)  # type: ignore[return-value]
+
+
 def load_learner(cfg: TrainConfig, path: Path) -> Learner:
     """The learner of a checkpoint or model file of this run's task."""
+    if cfg.driver_model is not None:
+        from brlcli.agent.gate import BrakeGatedAgent
+
+        return BrakeGatedAgent.load(path)  # type: ignore[return-value]
     if cfg.task == "navigation":
         return CommandAgent.load(path)
     return LaneKeepingLearner(BayesianAgent.load(path))
@@ -253,6 +274,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         atomic_write_json(run_dir / "config.json", provenance(cfg.to_dict(), kind="train-run"))
     if (run_dir / "summary.json").exists():
         return json.loads((run_dir / "summary.json").read_text())
+    if cfg.brake_gate_steps and cfg.driver_model is None:
+        return _train_gated(cfg, run_dir, progress)
     if cfg.committee > 1:
         return _train_committee(cfg, run_dir, resume, progress)
     env = make_env(cfg)
@@ -263,7 +286,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     curve = LearningCurve(run_dir, cfg, env.labeler, run.step) if cfg.curve_every else None
     reporter = ProgressReport(progress) if progress else None
     hooks = [h for h in (TrapRestart(cfg) if cfg.restart_below is not None else None,
-                         BranchRestart(cfg) if cfg.branch_restart_below is not None else None,
+                         BranchRestart(cfg) if cfg.branch_restart_below is not None and cfg.driver_model is None
+                         else None,
                          curve, reporter) if h is not None]
     t0 = time.perf_counter() - run.stats.wall_s
     while not run.done:
@@ -302,7 +326,7 @@ def _summary(run: Run, wall_s: float) -> dict[str, Any]:
                        final_attempt_steps=run.step - stats.attempt_start)
     if cfg.branch_restart_below is not None:
         summary["branch_restarts"] = stats.branch_restarts
-    if cfg.task == "navigation":
+    if cfg.task == "navigation" and cfg.driver_model is None:
         summary["components_per_branch"] = dict(zip(BRANCH_NAMES, agent.components_per_branch, strict=True))
     if cfg.evaluate:
         summary["eval"] = evaluate_greedy(deployable(agent), cfg)
@@ -446,7 +470,15 @@ class Progress:
     td_error: float
     components: int
     done: bool = False
-    member: int = 0  # committee member (TrainConfig.member)
+    member: int = 0  # committee member (TrainConfig.member); GATE_MEMBER for a brake gate's run
+
+
+GATE_MEMBER = -1
+"""`Progress.member` of a brake gate's run."""
+
+
+def _progress_member(cfg: TrainConfig) -> int:
+    return GATE_MEMBER if cfg.driver_model is not None else cfg.member
 
 
 class ProgressReport(Hook):
@@ -464,13 +496,14 @@ class ProgressReport(Hook):
         if run.step % PROGRESS_EVERY == 0:
             self.progress(Progress(run.cfg.seed, run.step, run.stats.attempt_start + run.cfg.steps, run.episode,
                                    float(np.mean(self.recent)), learned.td_error, learned.n_components,
-                                   member=run.cfg.member))
+                                   member=_progress_member(run.cfg)))
 
     def finish(self, run: Run) -> None:
         """The last report, when the run's summary is written."""
         self.progress(Progress(run.cfg.seed, run.step, run.step, run.episode,
                                float(np.mean(self.recent)) if self.recent else 0.0, self.td_error,
-                               run.agent.branch(run.command).n_components, done=True, member=run.cfg.member))
+                               run.agent.branch(run.command).n_components, done=True,
+                               member=_progress_member(run.cfg)))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -482,7 +515,7 @@ def log_row(run: Run, decision: int, action: int, reward: float, learned: LearnS
     """One learning step's log.csv row, by column name (LOG_COLUMNS)."""
     terms, m = info["reward_terms"], info["measurements"]
     return {"step": run.step, "episode": run.episode, "decision": decision,
-            "action": ACTION_SET_NAMES[run.cfg.actions][action],
+            "action": ACTION_SET_NAMES[run.cfg.env_actions][action],
             "reward": reward, "r_collision": terms["collision"], "r_offroad": terms["offroad"],
             "r_otherlane": terms["otherlane"], "r_speed": terms["speed"], "r_road_view": terms["road_view"],
             "td_error": learned.td_error, "component": learned.component, "created": int(learned.created),
@@ -583,7 +616,7 @@ def make_env(cfg: TrainConfig) -> DrivingEnv:
                       start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end,
                       route_reward=cfg.route_reward(), junction_weight=cfg.junction_weight if nav else None,
                       junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None,
-                      actions=cfg.actions, traffic=tuple(cfg.traffic), hazard=cfg.hazard_reward(), state=cfg.state,
+                      actions=cfg.env_actions, traffic=tuple(cfg.traffic), hazard=cfg.hazard_reward(), state=cfg.state,
                       r_stand=cfg.r_stand)
 
 
@@ -610,12 +643,12 @@ def evaluate_greedy(model: Any, cfg: TrainConfig) -> dict[str, Any]:
     from brlcli.bench.runner import SuiteEvaluator
     from brlcli.settings import setting_name
 
-    suite = EVALUATION_SUITES[cfg.task]
+    suite = "nav_validation_traffic" if cfg.traffic else EVALUATION_SUITES[cfg.task]
     weathers = str(cfg.weather) if suite == "validation_starts" else None
     evaluator = SuiteEvaluator(suite, weathers=weathers)
     try:
         policy = greedy_policy(model, cfg.task, setting_name(cfg.input, cfg.input, cfg.variant), labeler(cfg),
-                               cfg.camera(), cfg.actions, cfg.state)
+                               cfg.camera(), cfg.env_actions, cfg.state)
         figures = evaluator.evaluate(policy)
     finally:
         evaluator.close()
@@ -659,6 +692,27 @@ def _train_committee(cfg: TrainConfig, run_dir: Path, resume: bool,
     return record
 
 
+def _train_gated(cfg: TrainConfig, run_dir: Path, progress: Callable[[Progress], None] | None) -> dict[str, Any]:
+    """Train (or resume, or read) the driver in run_dir/driver (on empty roads, committee included), then the brake
+    gate over it in run_dir/gate (in traffic, `brake_gate_steps` steps); the seed's model.npz is the gated model and
+    its summary.json holds both parts (the evaluation is the gated model's, on nav_validation_traffic)."""
+    driver = train_run(cfg.driver_config(), run_dir / "driver", resume=True, progress=progress)["summary"]
+    gate_cfg = cfg.gate_config(str((run_dir / "driver" / "model.npz").resolve()))
+    gate = train_run(gate_cfg, run_dir / "gate", resume=True, progress=progress)["summary"]
+    atomic_write_bytes(run_dir / "model.npz", (run_dir / "gate" / "model.npz").read_bytes())
+    summary: dict[str, Any] = {
+        "seed": cfg.seed, "steps": driver["steps"] + gate["steps"], "episodes": driver["episodes"] + gate["episodes"],
+        "wall_s": driver["wall_s"] + gate["wall_s"], "components": gate["components"],
+        "steps_per_s": (driver["steps"] + gate["steps"]) / max(driver["wall_s"] + gate["wall_s"], 1e-9),
+        "driver": {k: driver[k] for k in ("steps", "episodes", "components", "wall_s", "committee") if k in driver},
+        "gate": {k: v for k, v in gate.items() if k != "eval"},
+        **({"eval": gate["eval"]} if "eval" in gate else {}),
+    }
+    record = {**provenance(cfg.to_dict()), "summary": summary}
+    atomic_write_json(run_dir / "summary.json", record)
+    return record
+
+
 def parse_seeds(text: str) -> list[int]:
     """'0-8' or '0,3,5' or '4' -> list of seeds."""
     out: list[int] = []
@@ -678,6 +732,16 @@ def parse_seeds(text: str) -> list[int]:
     if not out or any(s < 0 for s in out):
         raise BrlInputError(f"--seeds '{text}' must name non-negative seeds")
     return sorted(set(out))
+
+
+def _members_config(cfg: TrainConfig) -> TrainConfig:
+    """The configuration whose committee members a run trains: its driver's for a brake-gated run."""
+    return cfg.driver_config() if cfg.brake_gate_steps and cfg.driver_model is None else cfg
+
+
+def _members_dir(cfg: TrainConfig, run_dir: Path) -> Path:
+    """Where a run's committee members live: run_dir, or run_dir/driver for a brake-gated run."""
+    return run_dir / "driver" if cfg.brake_gate_steps and cfg.driver_model is None else run_dir
 
 
 def run_dir_for(out: Path, seed: int) -> Path:
@@ -712,7 +776,8 @@ def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, 
         atomic_write_json(out / "run.json", provenance({**cfg.to_dict(), "seeds": seeds, "workers": workers},
                                                       kind="train"))
         if cfg.committee > 1:  # the members first, every (seed, member) one task, then each seed's committee
-            members = [(c.member_config(k), str(run_dir_for(out, c.seed).resolve() / f"member_{k}"), resume)
+            members = [(_members_config(c).member_config(k), str(_members_dir(c, run_dir_for(out, c.seed)).resolve()
+                                                                  / f"member_{k}"), resume)
                        for c in cfgs for k in range(cfg.committee)]
             for _ in run_tasks(_train_task, members, executor=ex, on_report=progress):
                 pass

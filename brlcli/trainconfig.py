@@ -17,7 +17,7 @@ from brlcli.retired import RETIRED_CONFIG, RETIRED_PARAMS, drop_retired, refuse_
 from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams
 from brlcli.segnet import check_input_source
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import DrivingEnv
+from brlcli.sim.gym_env import GATE_DRIVER_ACTIONS, DrivingEnv
 from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
 from brlcli.sim.weather import get_weather
 
@@ -121,6 +121,11 @@ class TrainConfig:
     hazard_predict_s: float = 0.0  # how far ahead the hazard reward predicts road users (s; the expert's: 2)
     r_stand: float = 0.0  # outside the paper: cost per decision of standing still (< 1 km/h) with no hazard ahead
     state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers), "nearness" or "speed" (outside it)
+    brake_gate_steps: int = 0  # outside the paper, > 0: after the navigation model (the driver) is trained on empty
+    # roads, a brake gate (`brlcli.agent.gate`: go or stop) learns this many steps in `traffic` with the hazard reward
+    gate_state: str = "full"  # what the brake gate sees: "full" (the driver's state) or "road_users" (GATE_STATES)
+    driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
+    # driver/model.npz; or an existing navigation model.npz, then only the gate is trained)
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
@@ -167,6 +172,48 @@ class TrainConfig:
         except ValueError as exc:
             raise BrlInputError(f"bad training configuration: {exc}") from None
         get_weather(self.weather)
+        self._check_gate()
+
+    def _check_gate(self) -> None:
+        """The brake gate's options: a navigation run with traffic and the hazard reward, a driver's action set."""
+        gated = self.brake_gate_steps or self.driver_model is not None
+        if isinstance(self.brake_gate_steps, bool) or not isinstance(self.brake_gate_steps, int) or \
+                self.brake_gate_steps < 0:
+            raise BrlInputError(f"brake_gate_steps must be an integer >= 0, got {self.brake_gate_steps!r}")
+        from brlcli.agent.gate import GATE_STATES
+
+        if self.gate_state not in GATE_STATES:
+            raise BrlInputError(f"unknown gate_state '{self.gate_state}'; choose one of {', '.join(GATE_STATES)}")
+        if not gated:
+            return
+        if self.task != "navigation" or not self.traffic or not self.r_hazard:
+            raise BrlInputError("a brake gate needs --task navigation, traffic levels and the hazard reward (e.g. "
+                                "--set 'traffic=[\"empty\",\"regular\",\"dense\"]' --set r_hazard=20)")
+        if self.actions not in GATE_DRIVER_ACTIONS:
+            raise BrlInputError(f"a brake gate adds the stop primitive to its driver's actions: set actions to one "
+                                f"of {', '.join(GATE_DRIVER_ACTIONS)}, not '{self.actions}'")
+        if self.driver_model is not None:
+            from brlcli.agent.command import is_command_model
+
+            if self.committee > 1:
+                raise BrlInputError("a run over an existing driver_model trains one brake gate; drop committee")
+            if not is_command_model(self.driver_model):
+                raise BrlInputError(f"driver_model {self.driver_model} is not a navigation model file (the model.npz "
+                                    f"of brl train --task navigation)")
+
+    @property
+    def env_actions(self) -> str:
+        """The action set of the training environment: the driver's and `stop` for a brake gate's run."""
+        return GATE_DRIVER_ACTIONS[self.actions] if self.driver_model is not None else self.actions
+
+    def driver_config(self) -> TrainConfig:
+        """The configuration of a gated run's driver: the same run on empty roads, without the gate's options."""
+        return replace(self, brake_gate_steps=0, traffic=[], r_hazard=0.0, r_stand=0.0)
+
+    def gate_config(self, driver_model: str) -> TrainConfig:
+        """The configuration of a gated run's gate: `brake_gate_steps` learning steps over the frozen driver."""
+        return replace(self, steps=self.brake_gate_steps, brake_gate_steps=0, driver_model=driver_model,
+                       committee=1, member=0, restart_below=None, branch_restart_below=None, curve_every=0)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""

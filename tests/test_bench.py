@@ -206,6 +206,15 @@ def test_oracle_quantises_the_experts_steering_and_stops_only_with_the_stop_acti
     assert still.decide(obs) == ACTIONS[2]  # braking to slow down (for a turn): keep steering
     wants["stop"] = True
     assert still.decide(obs) == STOP_ACTION
+    fine = OraclePolicy(turn_steer=[0.05, 0.15, 0.4])  # issue 35: a finer steering set, +-each
+    fine._pilot = pilot
+    assert sorted(p.steer for p in fine._primitives) == [-0.4, -0.15, -0.05, 0.0, 0.05, 0.15, 0.4]
+    expert["control"] = Control(steer=-0.1, throttle=0.2)
+    assert fine.decide(obs).steer in (-0.05, -0.15) and plain.decide(obs) == ACTIONS[0]
+    expert["control"] = Control(steer=0.12, throttle=0.2)
+    assert fine.decide(obs).steer == 0.15
+    with pytest.raises(BrlInputError, match="turn_steer"):
+        OraclePolicy(turn_steer=[0.1, 2.0])
 
 
 def test_nocrash_suite_definition() -> None:

@@ -287,3 +287,67 @@ def test_a_braking_model_trains_in_traffic_and_its_options_are_checked_at_bench(
         BRLPolicy("brl", model)
     train_run(TrainConfig(task="navigation", steps=60, seed=0, evaluate=False), tmp_path / "plain")
     assert "no brake" in BRLPolicy("brl", str(tmp_path / "plain" / "model.npz")).setting
+
+
+def test_a_brake_gate_learns_over_a_frozen_committee_and_benches(tmp_path: Path) -> None:
+    import csv
+
+    from brlcli.agent.gate import BrakeGatedAgent
+    from brlcli.policy import BRLPolicy
+    from brlcli.train import train_many
+
+    cfg = TrainConfig(task="navigation", steps=80, seed=0, evaluate=False, committee=2, actions="fine",
+                      brake_gate_steps=60, traffic=["regular"], r_hazard=20.0)
+    train_many(cfg, [0], tmp_path / "gated")
+    seed = tmp_path / "gated" / "seed_0"
+    driver = seed / "driver"
+    assert (driver / "member_1" / "model.npz").exists() and (seed / "gate" / "log.csv").exists()
+    driver_cfg = json.loads((driver / "config.json").read_text())["config"]
+    assert driver_cfg["traffic"] == [] and driver_cfg["r_hazard"] == 0.0  # the driver learns on empty roads
+    rows = list(csv.DictReader(open(seed / "gate" / "log.csv")))
+    assert len(rows) == 60 and rows[0]["traffic"] == "regular"
+    assert "stop" in {r["action"] for r in rows}
+    agent = load_navigation_agent_checked(seed / "model.npz")
+    assert agent.n_actions == 9 and agent.stop_action == 8 and agent.state_dim == 30
+    summary = json.loads((seed / "summary.json").read_text())["summary"]
+    assert summary["steps"] == 2 * 80 + 60 and summary["gate"]["steps"] == 60 and summary["driver"]["committee"] == 2
+    # the gated model drives: stop where the gate says so, else the frozen committee's vote
+    rng = np.random.default_rng(1)
+    policy = BRLPolicy("brl", str(seed / "model.npz"))
+    assert len(policy.actions) == 9 and "fine steering, brake gate" in policy.setting
+    for s, c in zip(rng.dirichlet(np.ones(30), size=20), rng.choice([2, 3, 4, 5], size=20), strict=True):
+        stops = agent.gate.act(s, rng, greedy=True) == 1
+        expected = 8 if stops else agent.driver.act(s, int(c), rng, greedy=True)
+        assert policy.act(s, int(c)) == expected
+    loaded = BrakeGatedAgent.load(seed / "model.npz")
+    assert all(np.array_equal(v, loaded.to_arrays()[k]) for k, v in agent.to_arrays().items())
+    # a gate over an existing driver only: the same gate as the seed's own (same seed, same driver)
+    again = TrainConfig(task="navigation", steps=60, seed=0, evaluate=False, actions="fine", traffic=["regular"],
+                        r_hazard=20.0, driver_model=str((driver / "model.npz").resolve()),
+                        branch_restart_below=None)
+    train_run(again, tmp_path / "gate_only")
+    assert (tmp_path / "gate_only" / "log.csv").read_bytes() == (seed / "gate" / "log.csv").read_bytes()
+
+
+def load_navigation_agent_checked(path: Path):
+    from brlcli.agent.command import load_navigation_agent
+    from brlcli.agent.gate import BrakeGatedAgent
+
+    agent = load_navigation_agent(path)
+    assert isinstance(agent, BrakeGatedAgent) and is_command_model(path)
+    return agent
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"traffic": []}, "traffic levels and the hazard reward"),
+    ({"r_hazard": 0.0}, "traffic levels and the hazard reward"),
+    ({"actions": "stop"}, "set actions to one of paper, fine"),
+    ({"task": "lane-keeping"}, "--task navigation"),
+    ({"brake_gate_steps": -5}, "brake_gate_steps must be an integer >= 0"),
+    ({"driver_model": "README.md"}, "is not a navigation model file"),
+    ({"driver_model": "models/brl_nav/seed_0/member_0/model.npz", "committee": 3}, "drop committee"),
+])
+def test_brake_gate_options_are_checked_in_one_line(overrides: dict, message: str) -> None:
+    base = {"task": "navigation", "brake_gate_steps": 100, "traffic": ["regular"], "r_hazard": 20.0}
+    with pytest.raises(BrlInputError, match=message):
+        TrainConfig(**{**base, **overrides})

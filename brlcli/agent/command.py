@@ -222,22 +222,36 @@ class CommitteeAgent:
             raise BrlInputError(f"model file {path}: {exc}") from None
 
 
-def load_navigation_agent(path: str | os.PathLike[str]) -> CommandAgent | CommitteeAgent:
-    """A deployable navigation model: a command-conditioned agent or a committee of them (BrlInputError otherwise)."""
+def driver_from_npz(npz: Any, path: str) -> CommandAgent | CommitteeAgent:
+    """A command-conditioned agent or a committee from an open .npz (or a prefixed view of one), by its kind."""
+    kind = str(npz["kind"]) if "kind" in npz.files else ""
+    if kind == COMMITTEE_KIND:
+        return CommitteeAgent._from_npz(npz, path)
+    return CommandAgent._from_npz(npz, path)
+
+
+GATED_KIND = "brake-gated"
+"""Kind of a brake-gated navigation model (`brlcli.agent.gate`)."""
+
+
+def load_navigation_agent(path: str | os.PathLike[str]) -> Any:
+    """A deployable navigation model: a command-conditioned agent, a committee of them or a brake-gated one
+    (BrlInputError otherwise)."""
     path = os.fspath(path)
     npz = open_model_npz(path)
     with npz:
-        kind = str(npz["kind"]) if "kind" in npz.files else ""
-        if kind == COMMITTEE_KIND:
-            return CommitteeAgent._from_npz(npz, path)
-        return CommandAgent._from_npz(npz, path)
+        if "kind" in npz.files and str(npz["kind"]) == GATED_KIND:
+            from brlcli.agent.gate import BrakeGatedAgent
+
+            return BrakeGatedAgent._from_npz(npz, path)
+        return driver_from_npz(npz, path)
 
 
 def is_command_model(path: str | os.PathLike[str]) -> bool:
-    """Whether a model file holds a command-conditioned agent or a committee of them (False for lane-keeping models,
-    lane-keeping committees and unreadable files)."""
+    """Whether a model file holds a command-conditioned agent, a committee or a brake-gated one (False for
+    lane-keeping models, lane-keeping committees and unreadable files)."""
     try:
         with np.load(os.fspath(path), allow_pickle=False) as npz:
-            return "kind" in npz.files and str(npz["kind"]) in (COMMAND_KIND, COMMITTEE_KIND)
+            return "kind" in npz.files and str(npz["kind"]) in (COMMAND_KIND, COMMITTEE_KIND, GATED_KIND)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, AttributeError, TypeError):
         return False

@@ -107,7 +107,8 @@ class TrainingBars(LazyProgress):
         """Show a progress report."""
         key = (p.seed, p.member)
         if key not in self.tasks:
-            label = p.seed if self.committee == 1 else f"{p.seed} member {p.member}"
+            label = (f"{p.seed} gate" if p.member < 0 else p.seed if self.committee == 1
+                     else f"{p.seed} member {p.member}")
             self.tasks[key] = self.bar.add_task("", total=p.steps, seed=label, reward=0.0, td=0.0, comps=1)
         self.bar.update(self.tasks[key], completed=p.step, total=p.steps, reward=p.mean_reward, td=p.td_error,
                         comps=p.components)
@@ -117,6 +118,10 @@ def train_summary_line(s: dict) -> str:
     """One trained model's end-of-run line: totals, and the greedy evaluation's success beside Either and Score."""
     line = (f"seed {s['seed']}: {s['steps']} steps, {s['episodes']} episodes, {s['components']} components, "
             f"{s['steps_per_s']:.0f} steps/s")
+    if s.get("gate"):
+        driver = s["driver"]
+        line += (f" (a brake gate of {s['gate']['steps']} steps in traffic over "
+                 + (f"a committee of {driver['committee']}" if driver.get("committee") else "one driver") + ")")
     if s.get("committee"):
         restarted = sum(1 for m in s.get("members", []) if m.get("restarts"))
         line += (f" (a committee of {s['committee']} members, majority vote"

@@ -27,9 +27,20 @@ ACTIONS: tuple[Control, ...] = (
 ACTION_NAMES = ("forward", "right", "left", "backward")
 STOP = Control(steer=0.0, throttle=0.0, brake=1.0)
 """A fifth primitive outside the paper (issue 35): no throttle, full brake."""
-ACTION_SETS: dict[str, tuple[Control, ...]] = {"paper": ACTIONS, "stop": (*ACTIONS, STOP)}
-"""Action sets: the paper's four primitives, or those and `stop` (outside the paper)."""
-ACTION_SET_NAMES = {"paper": ACTION_NAMES, "stop": (*ACTION_NAMES, "stop")}
+FINE_STEER = (0.15, 0.05)
+"""Steering of the finer turn primitives of the `fine` action set (outside the paper, issue 35): with them (and a
+brake) the expert restricted to an agent's actions keeps its lane beside oncoming traffic (docs/navigation-study.md)."""
+FINE_ACTIONS = tuple(Control(steer=sign * s, throttle=ACTIONS[1].throttle) for s in FINE_STEER for sign in (1.0, -1.0))
+FINE_NAMES = ("right_0.15", "left_0.15", "right_0.05", "left_0.05")
+ACTION_SETS: dict[str, tuple[Control, ...]] = {"paper": ACTIONS, "stop": (*ACTIONS, STOP),
+                                               "fine": (*ACTIONS, *FINE_ACTIONS),
+                                               "fine_stop": (*ACTIONS, *FINE_ACTIONS, STOP)}
+"""Action sets: the paper's four primitives; those and `stop`; those and four finer turns, right / left at
+FINE_STEER; or those and `stop` (all but the first outside the paper)."""
+ACTION_SET_NAMES = {"paper": ACTION_NAMES, "stop": (*ACTION_NAMES, "stop"), "fine": (*ACTION_NAMES, *FINE_NAMES),
+                    "fine_stop": (*ACTION_NAMES, *FINE_NAMES, "stop")}
+GATE_DRIVER_ACTIONS = {"paper": "stop", "fine": "fine_stop"}
+"""A brake gate's driver action sets and the set its runs drive with: the driver's and `stop` last."""
 TRAFFIC_LEVELS = ("empty", "regular", "dense")
 """Training traffic levels (NoCrash's counts per town, `brlcli.sim.traffic.NOCRASH_TRAFFIC`)."""
 FRAMES_PER_DECISION = 7
