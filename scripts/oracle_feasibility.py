@@ -38,9 +38,9 @@ def main() -> None:
     args = ap.parse_args()
     options = {"decision_frames": args.decision_frames, "stop": args.stop, "backward_brake": args.backward_brake,
                "turn_steer": args.turn_steer if len(args.turn_steer) > 1 else args.turn_steer[0]}
+    steer = "" if args.turn_steer == [ACTIONS[1].steer] else "-steer" + "-".join(f"{t:g}" for t in args.turn_steer)
     name = (f"oracle-f{args.decision_frames}{'' if args.stop == 'never' else '-stop-' + args.stop}"
-            f"{'-backward-brake' if args.backward_brake else ''}"
-            f"{'' if args.turn_steer == [ACTIONS[1].steer] else '-steer' + '-'.join(f'{t:g}' for t in args.turn_steer)}")
+            f"{'-backward-brake' if args.backward_brake else ''}{steer}")
     specs = subset(build_suite(args.suite, None, args.tasks, None), args.episodes)
     config = {"suite": args.suite, "suite_version": suite_version(args.suite), "town_versions": town_versions(specs),
               "policies": [{"kind": "oracle", "name": name, **options}], "deploy": "gt", "seed": 0,

@@ -33,16 +33,32 @@ GATED_FORMAT_VERSION = 1
 """Version of a brake-gated model file."""
 GO, STOP = 0, 1
 """The gate's two actions."""
-GATE_STATES = ("full", "road_users")
-"""What the gate sees: the driver's whole state, or only its road-user entries (the dynamic-object share of each of
-the six image regions, and any numbers a state option appends): 6 numbers for the paper's state."""
+GATE_STATES = ("full", "road_users", "road_users_steer")
+"""What the gate sees: the driver's whole state; only its road-user entries (the dynamic-object share of each of the
+six image regions, and any numbers a state option appends: 6 numbers for the paper's state); or those and the
+steering the driver proposes at this decision (right and left, each |steer| / 0.4 clipped to [0, 1]: 8 numbers)."""
+STEER_SCALE = 0.4
 
 
-def gate_features(state: np.ndarray, gate_state: str) -> np.ndarray:
-    """The gate's view of an agent state (GATE_STATES)."""
+def gate_features(state: np.ndarray, gate_state: str, steer: float = 0.0) -> np.ndarray:
+    """The gate's view of an agent state (GATE_STATES), given the steering of the driver's proposed action."""
     if gate_state == "full":
         return state
-    return np.concatenate([state[:STATE_DIM].reshape(N_REGIONS, N_CATEGORIES)[:, DYNAMIC_CATEGORY], state[STATE_DIM:]])
+    users = np.concatenate([state[:STATE_DIM].reshape(N_REGIONS, N_CATEGORIES)[:, DYNAMIC_CATEGORY],
+                            state[STATE_DIM:]])
+    if gate_state == "road_users":
+        return users
+    return np.concatenate([users, np.clip([steer / STEER_SCALE, -steer / STEER_SCALE], 0.0, 1.0)])
+
+
+def driver_controls(n_actions: int) -> tuple[Any, ...]:
+    """The primitives of a driver with `n_actions` actions (the action set of that size without `stop`)."""
+    from brlcli.sim.gym_env import ACTION_SETS, GATE_DRIVER_ACTIONS
+
+    for name in GATE_DRIVER_ACTIONS:
+        if len(ACTION_SETS[name]) == n_actions:
+            return ACTION_SETS[name]
+    raise ValueError(f"no driver action set has {n_actions} actions")
 
 
 class BrakeGatedAgent:
@@ -54,6 +70,7 @@ class BrakeGatedAgent:
             raise ValueError(f"unknown gate state '{gate_state}'; choose one of {', '.join(GATE_STATES)}")
         self.driver = driver
         self.gate_state = gate_state
+        self.driver_controls = driver_controls(driver.n_actions) if gate_state == "road_users_steer" else ()
         dim = len(gate_features(np.zeros(driver.state_dim), gate_state))
         self.gate = gate if gate is not None else BayesianAgent(dim, 2, params)
         if self.gate.state_dim != dim or self.gate.n_actions != 2:
@@ -90,17 +107,23 @@ class BrakeGatedAgent:
         """The learning agent, whatever the command: the gate."""
         return self.gate
 
+    def _proposal(self, state: np.ndarray, command: int) -> tuple[int, np.ndarray]:
+        """The driver's greedy action under the command and the gate's view of the state with it."""
+        action = self.driver.act(state, command, self._rng, greedy=True)
+        steer = float(self.driver_controls[action].steer) if self.driver_controls else 0.0
+        return action, gate_features(state, self.gate_state, steer)
+
     def act(self, state: np.ndarray, command: int, rng: np.random.Generator, greedy: bool = False) -> int:
         """The gate's behaviour (or greedy) choice: `stop`, or the driver's greedy action under the command."""
-        if self.gate.act(gate_features(state, self.gate_state), rng, greedy=greedy) == STOP:
-            return self.stop_action
-        return self.driver.act(state, command, self._rng, greedy=True)
+        action, seen = self._proposal(state, command)
+        return self.stop_action if self.gate.act(seen, rng, greedy=greedy) == STOP else action
 
     def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray, command: int,
               next_command: int) -> LearnStep:
         """One step of Algorithm 1 in the gate on (s_t, go or stop, r_t, s_{t+1}); the driver stays frozen."""
-        return self.gate.learn(gate_features(state, self.gate_state), STOP if action == self.stop_action else GO,
-                               reward, gate_features(next_state, self.gate_state))
+        _, seen = self._proposal(state, command)
+        _, seen_next = self._proposal(next_state, next_command)
+        return self.gate.learn(seen, STOP if action == self.stop_action else GO, reward, seen_next)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Format version, kind, the driver's arrays under `driver.` and the gate's under `gate.`."""
