@@ -40,6 +40,8 @@ RETIRED_CONFIG: dict[str, Retired] = {
     "keep_best": Retired(False, "docs/navigation-study.md section 4, rows 10 and 12"),
     "command_bootstrap": Retired("next-branch", "docs/navigation-study.md section 3, rows 1-7 (own-branch)"),
     "start_along_m": Retired(0.0, "docs/lane-keeping-study.md, issue 34 rows 42-43", "e446df6"),
+    "gate_state": Retired("road_users", "docs/navigation-study.md section 12.6, rows gate_paper, gate_fine and "
+                                        "gate_fine_rus", "5b48387"),
 }
 """Retired keys of the training configuration (`brl train`, `brl sweep` grids)."""
 

@@ -123,7 +123,6 @@ class TrainConfig:
     state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers), "nearness" or "speed" (outside it)
     brake_gate_steps: int = 0  # outside the paper, > 0: after the navigation model (the driver) is trained on empty
     # roads, a brake gate (`brlcli.agent.gate`: go or stop) learns this many steps in `traffic` with the hazard reward
-    gate_state: str = "full"  # what the brake gate sees: "full" (the driver's state) or "road_users" (GATE_STATES)
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
     # driver/model.npz; or an existing navigation model.npz, then only the gate is trained)
 
@@ -180,10 +179,6 @@ class TrainConfig:
         if isinstance(self.brake_gate_steps, bool) or not isinstance(self.brake_gate_steps, int) or \
                 self.brake_gate_steps < 0:
             raise BrlInputError(f"brake_gate_steps must be an integer >= 0, got {self.brake_gate_steps!r}")
-        from brlcli.agent.gate import GATE_STATES
-
-        if self.gate_state not in GATE_STATES:
-            raise BrlInputError(f"unknown gate_state '{self.gate_state}'; choose one of {', '.join(GATE_STATES)}")
         if not gated:
             return
         if self.task != "navigation" or not self.traffic or not self.r_hazard:

@@ -12,6 +12,7 @@ import pytest
 from brlcli.agent import BayesianAgent
 from brlcli.agent.command import CommandAgent, is_command_model
 from brlcli.bench.suites import build_suite
+from brlcli.config import Layer
 from brlcli.errors import BrlInputError
 from brlcli.reward import RouteRewardParams, route_terms
 from brlcli.sim.gym_env import DrivingEnv
@@ -19,7 +20,7 @@ from brlcli.sim.navroutes import JUNCTION_KINDS, junction_routes, validation_rou
 from brlcli.sim.roadnet import Command, RoadNetwork
 from brlcli.sim.town import load_town
 from brlcli.train import LOG_COLUMNS, train_run
-from brlcli.trainconfig import TrainConfig
+from brlcli.trainconfig import TrainConfig, resolve_train_config
 
 
 @pytest.fixture(scope="module")
@@ -292,7 +293,8 @@ def test_a_braking_model_trains_in_traffic_and_its_options_are_checked_at_bench(
 def test_a_brake_gate_learns_over_a_frozen_committee_and_benches(tmp_path: Path) -> None:
     import csv
 
-    from brlcli.agent.gate import BrakeGatedAgent
+    from brlcli.agent.bayes import save_model_arrays
+    from brlcli.agent.gate import BrakeGatedAgent, gate_features
     from brlcli.policy import BRLPolicy
     from brlcli.train import train_many
 
@@ -316,11 +318,18 @@ def test_a_brake_gate_learns_over_a_frozen_committee_and_benches(tmp_path: Path)
     policy = BRLPolicy("brl", str(seed / "model.npz"))
     assert len(policy.actions) == 9 and "fine steering, brake gate" in policy.setting
     for s, c in zip(rng.dirichlet(np.ones(30), size=20), rng.choice([2, 3, 4, 5], size=20), strict=True):
-        stops = agent.gate.act(s, rng, greedy=True) == 1
+        stops = agent.gate.act(gate_features(s), rng, greedy=True) == 1
         expected = 8 if stops else agent.driver.act(s, int(c), rng, greedy=True)
         assert policy.act(s, int(c)) == expected
     loaded = BrakeGatedAgent.load(seed / "model.npz")
     assert all(np.array_equal(v, loaded.to_arrays()[k]) for k, v in agent.to_arrays().items())
+    assert agent.gate.state_dim == 6  # the gate sees the six road-user shares
+    old = {**agent.to_arrays(), "gate_state": np.array("full")}  # a gate of the retired gate_state option
+    save_model_arrays(tmp_path / "old.npz", old)
+    with pytest.raises(BrlInputError, match=r"gate_state' was retired.*5b48387"):
+        BrakeGatedAgent.load(tmp_path / "old.npz")
+    with pytest.raises(BrlInputError, match="retired"):
+        resolve_train_config([Layer("--set", {"gate_state": "full"})])
     # a gate over an existing driver only: the same gate as the seed's own (same seed, same driver)
     again = TrainConfig(task="navigation", steps=60, seed=0, evaluate=False, actions="fine", traffic=["regular"],
                         r_hazard=20.0, driver_model=str((driver / "model.npz").resolve()),

@@ -4,12 +4,13 @@ A navigation model trained on empty roads (a command-conditioned agent or a comm
 its lane and takes its turns; it never learned to stop, and a `stop` primitive among its own actions makes greedy
 navigation models stand still (docs/navigation-study.md, section 12.4: standing leaves the camera state unchanged, so
 a state where `stop` is greedy is absorbing). The gate is a second `BayesianAgent` over the same state with two
-actions, go and stop, learned with Algorithm 1 in traffic on the hazard reward while the frozen driver drives: at
+actions, go and stop, over the road-user entries of the state (GATE_STATE), learned with Algorithm 1 in traffic on
+the hazard reward while the frozen driver drives: at
 each decision the gate chooses; go takes the driver's greedy action, stop takes the `stop` primitive (the action
 index after the driver's). Its mixture only has to tell "something is near on my way" from "the way is clear", a
 question the 30-number state answers (ROC AUC 0.909, section 12.4).
 
-Model file: one `.npz` with `format_version`, `kind = "brake-gated"`, `gate_state` (GATE_STATES), the driver's
+Model file: one `.npz` with `format_version`, `kind = "brake-gated"`, `gate_state` (GATE_STATE), the driver's
 arrays under `driver.` (its own kind and version inside) and the gate's `BayesianAgent` arrays under `gate.`.
 """
 
@@ -25,6 +26,7 @@ from brlcli.agent.command import GATED_KIND, CommandAgent, CommitteeAgent, drive
 from brlcli.agent.params import BRLParams
 from brlcli.errors import BrlInputError
 from brlcli.features import N_CATEGORIES, N_REGIONS, STATE_DIM
+from brlcli.retired import RETIRED_CONFIG, retired_message
 
 DYNAMIC_CATEGORY = 3
 """The state's category of vehicles and pedestrians (`brlcli.features.CLASS_TO_CATEGORY`)."""
@@ -33,49 +35,30 @@ GATED_FORMAT_VERSION = 1
 """Version of a brake-gated model file."""
 GO, STOP = 0, 1
 """The gate's two actions."""
-GATE_STATES = ("full", "road_users", "road_users_steer")
-"""What the gate sees: the driver's whole state; only its road-user entries (the dynamic-object share of each of the
-six image regions, and any numbers a state option appends: 6 numbers for the paper's state); or those and the
-steering the driver proposes at this decision (right and left, each |steer| / 0.4 clipped to [0, 1]: 8 numbers)."""
-STEER_SCALE = 0.4
+GATE_STATE = "road_users"
+"""What the gate sees: the road-user entries of the driver's state (the dynamic-object share of each of the six image
+regions, and any numbers a state option appends): 6 numbers for the paper's state. On the driver's whole state the
+gate stood where nothing was near, and the driver's proposed steering beside the road users did not help
+(`gate_state`, retired: docs/navigation-study.md section 12.6)."""
 
 
-def gate_features(state: np.ndarray, gate_state: str, steer: float = 0.0) -> np.ndarray:
-    """The gate's view of an agent state (GATE_STATES), given the steering of the driver's proposed action."""
-    if gate_state == "full":
-        return state
-    users = np.concatenate([state[:STATE_DIM].reshape(N_REGIONS, N_CATEGORIES)[:, DYNAMIC_CATEGORY],
-                            state[STATE_DIM:]])
-    if gate_state == "road_users":
-        return users
-    return np.concatenate([users, np.clip([steer / STEER_SCALE, -steer / STEER_SCALE], 0.0, 1.0)])
-
-
-def driver_controls(n_actions: int) -> tuple[Any, ...]:
-    """The primitives of a driver with `n_actions` actions (the action set of that size without `stop`)."""
-    from brlcli.sim.gym_env import ACTION_SETS, GATE_DRIVER_ACTIONS
-
-    for name in GATE_DRIVER_ACTIONS:
-        if len(ACTION_SETS[name]) == n_actions:
-            return ACTION_SETS[name]
-    raise ValueError(f"no driver action set has {n_actions} actions")
+def gate_features(state: np.ndarray) -> np.ndarray:
+    """The gate's view of an agent state: its road-user entries (GATE_STATE)."""
+    return np.concatenate([state[:STATE_DIM].reshape(N_REGIONS, N_CATEGORIES)[:, DYNAMIC_CATEGORY],
+                           state[STATE_DIM:]])
 
 
 class BrakeGatedAgent:
     """A frozen navigation driver and a two-action Bayesian gate (go / stop) that learns when to stop."""
 
     def __init__(self, driver: CommandAgent | CommitteeAgent, gate: BayesianAgent | None = None,
-                 params: BRLParams | None = None, gate_state: str = "full") -> None:
-        if gate_state not in GATE_STATES:
-            raise ValueError(f"unknown gate state '{gate_state}'; choose one of {', '.join(GATE_STATES)}")
+                 params: BRLParams | None = None) -> None:
         self.driver = driver
-        self.gate_state = gate_state
-        self.driver_controls = driver_controls(driver.n_actions) if gate_state == "road_users_steer" else ()
-        dim = len(gate_features(np.zeros(driver.state_dim), gate_state))
+        dim = len(gate_features(np.zeros(driver.state_dim)))
         self.gate = gate if gate is not None else BayesianAgent(dim, 2, params)
         if self.gate.state_dim != dim or self.gate.n_actions != 2:
-            raise ValueError(f"a brake gate on the '{gate_state}' state has {dim} numbers and two actions, got "
-                             f"{self.gate.state_dim} and {self.gate.n_actions}")
+            raise ValueError(f"a brake gate sees {dim} numbers and has two actions, got {self.gate.state_dim} and "
+                             f"{self.gate.n_actions}")
         self._rng = np.random.default_rng(0)  # the driver acts greedily: it never draws
 
     @property
@@ -107,28 +90,22 @@ class BrakeGatedAgent:
         """The learning agent, whatever the command: the gate."""
         return self.gate
 
-    def _proposal(self, state: np.ndarray, command: int) -> tuple[int, np.ndarray]:
-        """The driver's greedy action under the command and the gate's view of the state with it."""
-        action = self.driver.act(state, command, self._rng, greedy=True)
-        steer = float(self.driver_controls[action].steer) if self.driver_controls else 0.0
-        return action, gate_features(state, self.gate_state, steer)
-
     def act(self, state: np.ndarray, command: int, rng: np.random.Generator, greedy: bool = False) -> int:
         """The gate's behaviour (or greedy) choice: `stop`, or the driver's greedy action under the command."""
-        action, seen = self._proposal(state, command)
-        return self.stop_action if self.gate.act(seen, rng, greedy=greedy) == STOP else action
+        if self.gate.act(gate_features(state), rng, greedy=greedy) == STOP:
+            return self.stop_action
+        return self.driver.act(state, command, self._rng, greedy=True)
 
     def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray, command: int,
               next_command: int) -> LearnStep:
         """One step of Algorithm 1 in the gate on (s_t, go or stop, r_t, s_{t+1}); the driver stays frozen."""
-        _, seen = self._proposal(state, command)
-        _, seen_next = self._proposal(next_state, next_command)
-        return self.gate.learn(seen, STOP if action == self.stop_action else GO, reward, seen_next)
+        return self.gate.learn(gate_features(state), STOP if action == self.stop_action else GO, reward,
+                               gate_features(next_state))
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Format version, kind, the driver's arrays under `driver.` and the gate's under `gate.`."""
         arrays: dict[str, np.ndarray] = {"format_version": np.array(GATED_FORMAT_VERSION, dtype=np.int64),
-                                         "kind": np.array(GATED_KIND), "gate_state": np.array(self.gate_state)}
+                                         "kind": np.array(GATED_KIND), "gate_state": np.array(GATE_STATE)}
         arrays.update({f"driver.{k}": v for k, v in self.driver.to_arrays().items()})
         arrays.update({f"gate.{k}": v for k, v in self.gate.to_arrays().items()})
         return arrays
@@ -156,9 +133,12 @@ class BrakeGatedAgent:
         if version != GATED_FORMAT_VERSION:
             raise BrlInputError(f"model file {path} has format version {version}, this brl reads brake-gated "
                                 f"version {GATED_FORMAT_VERSION}")
+        if gate_state != GATE_STATE:
+            raise BrlInputError(f"model file {path} has a gate on the '{gate_state}' state: "
+                                f"{retired_message('gate_state', RETIRED_CONFIG['gate_state'])}")
         driver = driver_from_npz(Prefixed(npz, "driver."), f"{path} (driver)")
         gate = BayesianAgent._from_npz(Prefixed(npz, "gate."), f"{path} (gate)")
         try:
-            return cls(driver, gate, gate_state=gate_state)
+            return cls(driver, gate)
         except ValueError as exc:
             raise BrlInputError(f"model file {path}: {exc}") from None
