@@ -42,6 +42,7 @@ RETIRED_CONFIG: dict[str, Retired] = {
     "start_along_m": Retired(0.0, "docs/lane-keeping-study.md, issue 34 rows 42-43", "e446df6"),
     "gate_state": Retired("road_users", "docs/navigation-study.md section 12.6, rows gate_paper, gate_fine and "
                                         "gate_fine_rus", "5b48387"),
+    "hazard_heading": Retired(False, "docs/navigation-study.md section 12.6, rows gate_*_head*", "18570b5"),
 }
 """Retired keys of the training configuration (`brl train`, `brl sweep` grids)."""
 

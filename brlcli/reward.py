@@ -98,8 +98,6 @@ class HazardRewardParams:
     predict_s: float = 0.0
     """How far ahead (s) road users' positions are predicted for g (0.5 s steps): 0 = where they are now, which the
     camera can see; the expert's 2 s also counts users that will cross, which the camera state cannot show."""
-    along_heading: bool = False
-    """Whether g also counts road users on the straight line along the car's heading (`hazard_gap_m`)."""
 
     def __post_init__(self) -> None:
         if not (self.r_hazard >= 0 and 0 <= self.stop_m < self.slow_m and 0 <= self.predict_s <= 5):

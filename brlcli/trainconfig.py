@@ -119,7 +119,6 @@ class TrainConfig:
     hazard_stop_m: float = 4.0
     hazard_slow_m: float = 15.0
     hazard_predict_s: float = 0.0  # how far ahead the hazard reward predicts road users (s; the expert's: 2)
-    hazard_heading: bool = False  # the hazard reward also looks along the car's heading, not only its route
     r_stand: float = 0.0  # outside the paper: cost per decision of standing still (< 1 km/h) with no hazard ahead
     state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers), "nearness" or "speed" (outside it)
     brake_gate_steps: int = 0  # outside the paper, > 0: after the navigation model (the driver) is trained on empty
@@ -264,8 +263,7 @@ class TrainConfig:
         """The hazard reward terms (None when r_hazard is 0: the paper's reward)."""
         if not self.r_hazard:
             return None
-        return HazardRewardParams(self.r_hazard, self.hazard_stop_m, self.hazard_slow_m, self.hazard_predict_s,
-                                  self.hazard_heading)
+        return HazardRewardParams(self.r_hazard, self.hazard_stop_m, self.hazard_slow_m, self.hazard_predict_s)
 
     def camera(self) -> CameraConfig:
         """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""

@@ -159,24 +159,3 @@ def test_standing_where_nothing_is_ahead_costs_r_stand() -> None:
     with pytest.raises(BrlInputError, match="r_stand"):
         DrivingEnv(town="town01", r_stand=-1.0)
 
-
-def test_the_hazard_gap_along_the_heading_sees_a_car_off_the_route(traffic_env: DrivingEnv) -> None:
-    import math
-
-    from brlcli.sim.hazard import hazard_gap_m
-
-    traffic_env.reset(seed=2)
-    t = traffic_env.world.traffic
-    for i in range(t.n_vehicles):
-        t.hold_vehicle(i, -1e4 - 10 * i, -1e4, 0.0)
-    for i in range(t.n_pedestrians):
-        t.hold_pedestrian(i, 1e4 + 10 * i, 1e4)
-    m = traffic_env.world.ego
-    s, _ = traffic_env.route.project(m.x_m, m.y_m)
-    x, y, yaw = traffic_env.route.pose_at(s + 12.0)
-    side = math.radians(yaw) + math.pi / 2  # 5 m to the left of the route, 12 m ahead: beside the route's corridor
-    t.hold_vehicle(0, x + 5.0 * math.cos(side), y + 5.0 * math.sin(side), yaw)
-    heading_deg = math.degrees(math.atan2(y + 5.0 * math.sin(side) - m.y_m, x + 5.0 * math.cos(side) - m.x_m))
-    assert hazard_gap_m(t, traffic_env.route, m.x_m, m.y_m, heading_deg, (0.0,)) == math.inf
-    gap = hazard_gap_m(t, traffic_env.route, m.x_m, m.y_m, heading_deg, (0.0,), along_heading=True)
-    assert 5.0 < gap < 13.0  # the car the ego points at, off its route

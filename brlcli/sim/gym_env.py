@@ -226,8 +226,7 @@ class DrivingEnv(gym.Env):
         vt = self.reward_params.target_speed_kmh
         gap, v_target = math.inf, vt
         if self.hazard is not None:
-            gap = hazard_gap_m(self.world.traffic, self.route, m.x, m.y, m.yaw_deg, self.hazard.predict_times_s,
-                               self.hazard.along_heading)
+            gap = hazard_gap_m(self.world.traffic, self.route, m.x, m.y, m.yaw_deg, self.hazard.predict_times_s)
             v_target = self.hazard.target_kmh(gap, vt)
             terms = hazard_terms(m.forward_speed_kmh, gap, terms, self.reward_params, self.hazard)
         if self.r_stand and v_target >= vt and abs(m.forward_speed_kmh) < STUCK_SPEED_KMH:

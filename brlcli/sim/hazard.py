@@ -25,14 +25,13 @@ pedestrian's centre): the expert's half width, 0.9 m, plus the user's half width
 
 
 def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: float,
-                 predict_s: tuple[float, ...] = PREDICT_S, along_heading: bool = False) -> float:
+                 predict_s: tuple[float, ...] = PREDICT_S) -> float:
     """Free distance (m, bumper to the nearest hazard) along `route` ahead of a car at (x, y, yaw); inf when clear.
 
     Every road user of `traffic` (its `boxes()` and `velocities()`) at `predict_s` (s) at its current velocity is
     tested against the corridor of the next PATH_AHEAD_M of the route (cars as three circles along their length); a
-    user behind the car moving its way (following traffic) is no hazard. With `along_heading` the straight line of
-    PATH_AHEAD_M along the car's heading is tested too (a car that has left its route's lane). Privileged: the
-    expert's and the training reward's view of traffic, never an agent's input."""
+    user behind the car moving its way (following traffic) is no hazard. Privileged: the expert's and the training
+    reward's view of traffic, never an agent's input."""
     boxes = traffic.boxes()
     if not len(boxes):
         return math.inf
@@ -57,9 +56,6 @@ def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: fl
                             np.interp(q, route.cum_s, route.points[:, 1])])
     yaw = math.radians(yaw_deg)
     ego_heading = np.array([math.cos(yaw), math.sin(yaw)])
-    if along_heading:
-        path = np.concatenate([path, np.array([x_m, y_m]) + d[:, None] * ego_heading[None, :]])
-        d = np.concatenate([d, d])
     rel = boxes[user, 1:3] - (x_m, y_m)
     behind = (rel @ ego_heading < 0.0) & (vel @ ego_heading > 0.5)  # following traffic is no hazard
     best = math.inf
