@@ -290,16 +290,25 @@ def test_bench_stopped_by_sigterm_saves_its_episodes_and_prints_no_traceback(tmp
     assert all((out / r["frames_file"]).exists() for r in done)
 
 
-def test_a_set_of_committee_members_without_committees_says_how_to_assemble_them(tmp_path: Path) -> None:
+def test_every_shipped_model_set_benches_as_shipped(tmp_path: Path) -> None:
+    """Issue 36: models/ runs as it is; a set of committee members without a committee file votes as a committee."""
+    from brlcli.agent.command import CommitteeAgent
     from brlcli.bench.registry import find_models
+    from brlcli.policy import BRLPolicy
 
-    for k in range(2):
-        member = tmp_path / "nav" / "seed_0" / f"member_{k}"
-        member.mkdir(parents=True)
-        (member / "model.npz").write_bytes(b"")
-    for model, models in ((None, [str(tmp_path / "nav")]), (str(tmp_path / "nav" / "seed_0"), None)):
-        with pytest.raises(BrlInputError, match=r"committee members but no committee model\.npz.*--resume"):
-            find_models(model, models)
+    root = Path(__file__).resolve().parents[1] / "models"
+    for name in ("brl_gt", "brl_gt_paper", "brl_te", "brl_nav"):
+        found = find_models(None, [str(root / name)])
+        assert [n for n, _ in found] == [f"{name}/seed_{k}" for k in range(9)], name
+        for policy_name, path in found:
+            policy = BRLPolicy(policy_name, path)
+            assert policy.task == ("navigation" if name == "brl_nav" else "lane-keeping")
+            if name == "brl_nav":
+                assert isinstance(policy.agent, CommitteeAgent) and len(policy.agent.members) == 7
+                assert "navigation, no brake" in policy.setting
+    assert find_models(str(root / "brl_nav" / "seed_3"), None) == [("seed_3", str(root / "brl_nav" / "seed_3"))]
+    with pytest.raises(BrlInputError, match=r"committee members but no committee model\.npz"):
+        find_models(str(root / "brl_nav"), None)  # a set of member sets is --models, not --model
     (tmp_path / "empty").mkdir()
     with pytest.raises(BrlInputError, match=r"holds no model\.npz files"):
         find_models(None, [str(tmp_path / "empty")])

@@ -80,8 +80,8 @@ COMMITTEE_MEMBER_GLOBS = ("member_*/model.npz", "*/member_*/model.npz")
 
 def _members_without_committee(where: str) -> str:
     """The error for a committee's members found where a committee model.npz was expected."""
-    return (f"{where} holds committee members but no committee model.npz: assemble it with `brl train --task "
-            "navigation --set committee=K --resume` on a copy (models/README.md)")
+    return (f"{where} holds committee members but no committee model.npz of its own: bench its seed directories "
+            "as a set (--models DIR, or --model DIR/seed_N)")
 
 
 def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, str]]:
@@ -89,16 +89,21 @@ def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, 
     given twice is listed once."""
     import glob as globmod
 
+    from brlcli.policy import committee_members
+
     found: list[tuple[str, str]] = []
     if model:
         p = Path(model)
-        if p.is_dir():
-            p = p / "model.npz"
-        if not p.is_file():
-            if any(p.parent.glob(COMMITTEE_MEMBER_GLOBS[0])):
-                raise BrlInputError(_members_without_committee(str(p.parent)))
-            raise BrlInputError(f"model file {p} does not exist")
-        found.append((p.parent.name or p.stem, str(p)))
+        if committee_members(p):  # a member set: the policy assembles the committee
+            found.append((p.resolve().name, str(p)))
+        else:
+            if p.is_dir():
+                p = p / "model.npz"
+            if not p.is_file():
+                if any(p.parent.glob(COMMITTEE_MEMBER_GLOBS[1])):
+                    raise BrlInputError(_members_without_committee(str(p.parent)))
+                raise BrlInputError(f"model file {p} does not exist")
+            found.append((p.parent.name or p.stem, str(p)))
     for item in models or []:
         hits = sorted(globmod.glob(item)) if any(ch in item for ch in "*?[") else [item]
         paths: list[Path] = []
@@ -108,14 +113,18 @@ def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, 
                 paths.append(hp)
             elif (hp / "model.npz").is_file():
                 paths.append(hp / "model.npz")
+            elif committee_members(hp):
+                paths.append(hp / "model.npz")  # named as a file; the member set itself is what runs
             elif hp.is_dir():
-                paths.extend(sorted(hp.glob("*/model.npz")))
+                paths.extend(sorted({*hp.glob("*/model.npz"), *(d / "model.npz" for d in hp.iterdir()
+                                                                  if committee_members(d))}))
         if not paths:
             if any(Path(h).is_dir() and any(Path(h).glob(g)) for h in hits for g in COMMITTEE_MEMBER_GLOBS):
                 raise BrlInputError(_members_without_committee(f"--models '{item}'"))
             raise BrlInputError(f"--models '{item}' holds no model.npz files")
         for p in paths:
-            found.append((f"{p.parent.parent.name}/{p.parent.name}", str(p)))
+            where = p if p.is_file() else p.parent  # a member set runs as its directory
+            found.append((f"{p.parent.parent.name}/{p.parent.name}", str(where)))
     if not found:
         from brlcli.models import default_model_set
 
