@@ -133,7 +133,7 @@ def train_summary_line(s: dict) -> str:
         line += f" ({len(s['restarts'])} restart{'s' if len(s['restarts']) > 1 else ''}, trapped: {why})"
     ev = s.get("eval")
     if ev:
-        task = "navigation" if ev.get("suite") == "nav_validation" else "lane-keeping"
+        task = "navigation" if str(ev.get("suite", "")).startswith("nav_validation") else "lane-keeping"
         where = f"{ev['suite']} suite" if "suite" in ev else f"{ev['town']} {ev.get('routes', 'lane_keeping')} routes"
         line += (f", {task} success {ev['success_rate']:.0%}  Either {ev['either_share']:.1%}  "
                  f"Score {ev['score']:.2f} ({where})")
