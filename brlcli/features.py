@@ -22,6 +22,8 @@ CLASS_TO_CATEGORY[[CarlaClass.PEDESTRIANS, CarlaClass.VEHICLES]] = 3
 CLASS_TO_CATEGORY[[CarlaClass.BUILDINGS, CarlaClass.FENCES, CarlaClass.POLES, CarlaClass.VEGETATION,
                    CarlaClass.WALLS, CarlaClass.TRAFFIC_SIGNS]] = 4
 CATEGORY_WEIGHTS = np.array([1.0, ROAD_LINE_WEIGHT, 1.0, 1.0, 1.0])
+DYNAMIC_CATEGORY = 3
+"""The category of vehicles and pedestrians (road users)."""
 
 
 def region_index(height: int, width: int) -> np.ndarray:

@@ -78,8 +78,9 @@ class PolicySpec:
 def _training_config(model_path: Path) -> dict[str, Any]:
     """The training configuration in the config.json beside a BRL model, or a member set's first member's ({} without
     one)."""
-    members = committee_members(model_path)
-    cfg = (members[0] if members else Path(model_path)).parent / "config.json"
+    from brlcli.agent.committee import committee_members
+
+    cfg = (committee_members(model_path) or [Path(model_path)])[0].parent / "config.json"
     if not cfg.exists():
         return {}
     try:
@@ -169,33 +170,6 @@ def greedy_command_brl(agent: Any) -> Callable[[np.ndarray, int], int]:
     return act
 
 
-def committee_members(model: str | Path) -> list[Path]:
-    """The members' model files of a committee run directory without its own model.npz (a shipped member set such as
-    models/brl_nav/seed_0), in member order; [] for anything else."""
-    path = Path(model)
-    if not path.is_dir() or (path / "model.npz").exists():
-        return []
-    members = [p for p in path.glob("member_*/model.npz") if p.parent.name.split("_", 1)[1].isdigit()]
-    return sorted(members, key=lambda p: int(p.parent.name.split("_", 1)[1]))
-
-
-def _load_members(members: list[Path], navigation: bool) -> Any:
-    """The voting committee of a member set, assembled in memory."""
-    from brlcli.agent.command import CommandAgent, CommitteeAgent
-    from brlcli.agent.committee import LaneKeepingCommittee, load_lane_keeping_agent
-
-    if len(members) < 2:
-        return CommandAgent.load(members[0]) if navigation else load_lane_keeping_agent(members[0])
-    try:
-        if navigation:
-            return CommitteeAgent([CommandAgent.load(p) for p in members])
-        from brlcli.agent import BayesianAgent
-
-        return LaneKeepingCommittee([BayesianAgent.load(p) for p in members])
-    except ValueError as exc:
-        raise BrlInputError(f"committee members in {members[0].parent.parent}: {exc}") from None
-
-
 class BRLPolicy(StatePolicy):
     """A trained Bayesian RL model deployed greedily on GT or estimated labels (decision every 7 frames); a
     command-conditioned model (task navigation) acts with the branch of the route command."""
@@ -205,18 +179,13 @@ class BRLPolicy(StatePolicy):
         from brlcli.agent.committee import load_lane_keeping_agent
 
         check_input_source(deploy)
-        members = committee_members(model)
-        source = members[0] if members else Path(model)  # the file whose config.json describes the model
-        self.task = model_task(source)
-        command = is_command_model(source)
+        self.task = model_task(Path(model))
+        command = is_command_model(model)
         if command != (self.task == "navigation"):
-            raise BrlInputError(f"model {source} is {'' if command else 'not '}command-conditioned but its "
+            raise BrlInputError(f"model {model} is {'' if command else 'not '}command-conditioned but its "
                                 f"config.json says task {self.task}")
-        if members:  # a member set without its committee file: the committee is assembled here
-            self.agent = _load_members(members, command)
-        else:
-            self.agent = load_navigation_agent(model) if command else load_lane_keeping_agent(model)
-        config = _training_config(source)
+        self.agent = load_navigation_agent(model) if command else load_lane_keeping_agent(model)
+        config = _training_config(Path(model))
         actions, state = str(config.get("actions", "paper")), str(config.get("state", "paper"))
         gated = bool(config.get("brake_gate_steps") or config.get("driver_model"))
         if gated and actions in GATE_DRIVER_ACTIONS:  # a brake gate's driver set and `stop`
@@ -232,16 +201,16 @@ class BRLPolicy(StatePolicy):
             raise BrlInputError(f"model {model} has state size {self.agent.state_dim} and {self.agent.n_actions} "
                                 f"actions, but its config.json's state '{state}' and action set '{actions}' need {dim} "
                                 f"and {n_actions}")
-        self.variant = model_variant(source)
+        self.variant = model_variant(Path(model))
         label = self.variant if self.task == "lane-keeping" else f"{self.variant}, navigation"
         if self.task == "navigation":
             label += ", fine steering" if actions.startswith("fine") else ""
             label += ", brake gate" if gated else ", stop primitive" if actions == "stop" else ", no brake"
         if state != "paper":
             label += f", {state} state"
-        super().__init__(name, setting_name(model_training_input(source), deploy, label),
+        super().__init__(name, setting_name(model_training_input(Path(model)), deploy, label),
                          greedy_command_brl(self.agent) if command else greedy_brl(self.agent),
-                         labeler_for(deploy, segnet), model_camera(source), uses_command=command,
+                         labeler_for(deploy, segnet), model_camera(Path(model)), uses_command=command,
                          actions=actions, state=state)
 
 

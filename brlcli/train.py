@@ -274,7 +274,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         atomic_write_json(run_dir / "config.json", provenance(cfg.to_dict(), kind="train-run"))
     if (run_dir / "summary.json").exists():
         return json.loads((run_dir / "summary.json").read_text())
-    if cfg.brake_gate_steps and cfg.driver_model is None:
+    if cfg.trains_driver_then_gate:
         return _train_gated(cfg, run_dir, progress)
     if cfg.committee > 1:
         return _train_committee(cfg, run_dir, resume, progress)
@@ -643,7 +643,7 @@ def evaluate_greedy(model: Any, cfg: TrainConfig) -> dict[str, Any]:
     from brlcli.bench.runner import SuiteEvaluator
     from brlcli.settings import setting_name
 
-    suite = "nav_validation_traffic" if cfg.traffic else EVALUATION_SUITES[cfg.task]
+    suite = "nav_validation_traffic" if cfg.traffic and cfg.task == "navigation" else EVALUATION_SUITES[cfg.task]
     weathers = str(cfg.weather) if suite == "validation_starts" else None
     evaluator = SuiteEvaluator(suite, weathers=weathers)
     try:
@@ -736,12 +736,12 @@ def parse_seeds(text: str) -> list[int]:
 
 def _members_config(cfg: TrainConfig) -> TrainConfig:
     """The configuration whose committee members a run trains: its driver's for a brake-gated run."""
-    return cfg.driver_config() if cfg.brake_gate_steps and cfg.driver_model is None else cfg
+    return cfg.driver_config() if cfg.trains_driver_then_gate else cfg
 
 
 def _members_dir(cfg: TrainConfig, run_dir: Path) -> Path:
     """Where a run's committee members live: run_dir, or run_dir/driver for a brake-gated run."""
-    return run_dir / "driver" if cfg.brake_gate_steps and cfg.driver_model is None else run_dir
+    return run_dir / "driver" if cfg.trains_driver_then_gate else run_dir
 
 
 def run_dir_for(out: Path, seed: int) -> Path:

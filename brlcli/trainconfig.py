@@ -124,7 +124,7 @@ class TrainConfig:
     brake_gate_steps: int = 0  # outside the paper, > 0: after the navigation model (the driver) is trained on empty
     # roads, a brake gate (`brlcli.agent.gate`: go or stop) learns this many steps in `traffic` with the hazard reward
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
-    # driver/model.npz; or an existing navigation model.npz, then only the gate is trained)
+    # driver/model.npz; or an existing navigation model.npz or member set, then only the gate is trained)
 
     def __post_init__(self) -> None:
         check_input_source(self.input, "--input")
@@ -193,8 +193,13 @@ class TrainConfig:
             if self.committee > 1:
                 raise BrlInputError("a run over an existing driver_model trains one brake gate; drop committee")
             if not is_command_model(self.driver_model):
-                raise BrlInputError(f"driver_model {self.driver_model} is not a navigation model file (the model.npz "
-                                    f"of brl train --task navigation)")
+                raise BrlInputError(f"driver_model {self.driver_model} is not a navigation model (the model.npz of "
+                                    f"brl train --task navigation, or a directory of its committee members)")
+
+    @property
+    def trains_driver_then_gate(self) -> bool:
+        """Whether this run trains its driver (in driver/) and then a brake gate over it (in gate/)."""
+        return bool(self.brake_gate_steps) and self.driver_model is None
 
     @property
     def env_actions(self) -> str:

@@ -25,10 +25,9 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import gymnasium as gym
 import numpy as np
 
-from brlcli.agent.command import CommandAgent, CommitteeAgent, load_navigation_agent
+from brlcli.agent.command import load_navigation_agent
 from brlcli.provenance import atomic_write_json
 from brlcli.sim.gym_env import ACTION_SETS
 from brlcli.train import make_env
@@ -37,22 +36,12 @@ from brlcli.trainconfig import TrainConfig
 NEAR_M = 15.0
 
 
-def load_model(path: Path) -> CommandAgent | CommitteeAgent:
-    """A navigation model file, or a seed directory's committee members (voting)."""
-    if path.is_dir() and not (path / "model.npz").exists():
-        members = sorted(path.glob("member_*/model.npz"))
-        return CommitteeAgent([CommandAgent.load(p) for p in members])
-    return load_navigation_agent(path / "model.npz" if path.is_dir() else path)
-
-
 def _episodes(job: tuple[str, str, list[int]]) -> list[dict]:
     model_path, level, seeds = job
-    agent = load_model(Path(model_path))
-    cfg = TrainConfig(task="navigation", traffic=[level], r_hazard=20.0)  # the hazard gap is only recorded
-    env = make_env(cfg)
+    agent = load_navigation_agent(model_path)
     actions = next(name for name, primitives in ACTION_SETS.items() if len(primitives) == agent.n_actions)
-    env.actions = ACTION_SETS[actions]  # the model's own action set
-    env.action_space = gym.spaces.Discrete(agent.n_actions)
+    env = make_env(TrainConfig(task="navigation", traffic=[level], r_hazard=20.0, actions=actions))  # the hazard
+    # reward only records the gap
     rng = np.random.default_rng(0)  # greedy acting draws nothing
     out = []
     for seed in seeds:

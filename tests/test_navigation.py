@@ -353,10 +353,21 @@ def load_navigation_agent_checked(path: Path):
     ({"actions": "stop"}, "set actions to one of paper, fine"),
     ({"task": "lane-keeping"}, "--task navigation"),
     ({"brake_gate_steps": -5}, "brake_gate_steps must be an integer >= 0"),
-    ({"driver_model": "README.md"}, "is not a navigation model file"),
+    ({"driver_model": "README.md"}, "is not a navigation model"),
+    ({"driver_model": "models/brl_gt/seed_0"}, "is not a navigation model"),
     ({"driver_model": "models/brl_nav/seed_0/member_0/model.npz", "committee": 3}, "drop committee"),
 ])
 def test_brake_gate_options_are_checked_in_one_line(overrides: dict, message: str) -> None:
     base = {"task": "navigation", "brake_gate_steps": 100, "traffic": ["regular"], "r_hazard": 20.0}
     with pytest.raises(BrlInputError, match=message):
         TrainConfig(**{**base, **overrides})
+
+
+def test_a_brake_gate_drives_over_a_shipped_member_set() -> None:
+    from brlcli.agent.command import CommitteeAgent
+    from brlcli.train import new_learner
+
+    cfg = TrainConfig(task="navigation", driver_model="models/brl_nav/seed_0", traffic=["dense"], r_hazard=20.0)
+    learner = new_learner(cfg)
+    assert isinstance(learner.driver, CommitteeAgent) and len(learner.driver.members) == 7  # type: ignore[attr-defined]
+    assert cfg.env_actions == "stop" and not cfg.trains_driver_then_gate

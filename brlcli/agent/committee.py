@@ -13,6 +13,7 @@ Model file: `format_version`, `kind = "lane-keeping-committee"`, `members` and e
 from __future__ import annotations
 
 import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -94,8 +95,26 @@ class LaneKeepingCommittee:
             raise BrlInputError(f"model file {path}: {exc}") from None
 
 
+def committee_members(path: str | os.PathLike[str]) -> list[Path]:
+    """The members' model files of a committee run directory without a model.npz of its own (a shipped member set
+    such as models/brl_nav/seed_0), in member order; [] for anything else."""
+    run = Path(path)
+    if not run.is_dir() or (run / "model.npz").exists():
+        return []
+    members = [p for p in run.glob("member_*/model.npz") if p.parent.name.removeprefix("member_").isdigit()]
+    return sorted(members, key=lambda p: int(p.parent.name.removeprefix("member_")))
+
+
 def load_lane_keeping_agent(path: str | os.PathLike[str]) -> BayesianAgent | LaneKeepingCommittee:
-    """A deployable lane-keeping model: the paper's agent or a committee of them (BrlInputError otherwise)."""
+    """A deployable lane-keeping model: the paper's agent or a committee of them, from its model file or from a
+    member set's directory (`committee_members`; BrlInputError otherwise)."""
+    members = committee_members(path)
+    if members:
+        agents = [BayesianAgent.load(p) for p in members]
+        try:
+            return LaneKeepingCommittee(agents) if len(agents) > 1 else agents[0]
+        except ValueError as exc:
+            raise BrlInputError(f"committee members in {path}: {exc}") from None
     path = os.fspath(path)
     npz = open_model_npz(path)
     with npz:

@@ -3,12 +3,10 @@
 A navigation model trained on empty roads (a command-conditioned agent or a committee of them: the *driver*) keeps
 its lane and takes its turns; it never learned to stop, and a `stop` primitive among its own actions makes greedy
 navigation models stand still (docs/navigation-study.md, section 12.4: standing leaves the camera state unchanged, so
-a state where `stop` is greedy is absorbing). The gate is a second `BayesianAgent` over the same state with two
-actions, go and stop, over the road-user entries of the state (GATE_STATE), learned with Algorithm 1 in traffic on
-the hazard reward while the frozen driver drives: at
-each decision the gate chooses; go takes the driver's greedy action, stop takes the `stop` primitive (the action
-index after the driver's). Its mixture only has to tell "something is near on my way" from "the way is clear", a
-question the 30-number state answers (ROC AUC 0.909, section 12.4).
+a state where `stop` is greedy is absorbing). The gate is a second `BayesianAgent` with two actions, go and stop,
+over the road-user entries of the state (GATE_STATE), learned with Algorithm 1 in traffic on the hazard reward while
+the frozen driver drives: at each decision the gate chooses; go takes the driver's greedy action, stop takes the
+`stop` primitive (the action index after the driver's).
 
 Model file: one `.npz` with `format_version`, `kind = "brake-gated"`, `gate_state` (GATE_STATE), the driver's
 arrays under `driver.` (its own kind and version inside) and the gate's `BayesianAgent` arrays under `gate.`.
@@ -25,11 +23,8 @@ from brlcli.agent.bayes import BayesianAgent, LearnStep, Prefixed, _one_line, op
 from brlcli.agent.command import GATED_KIND, CommandAgent, CommitteeAgent, driver_from_npz
 from brlcli.agent.params import BRLParams
 from brlcli.errors import BrlInputError
-from brlcli.features import N_CATEGORIES, N_REGIONS, STATE_DIM
+from brlcli.features import DYNAMIC_CATEGORY, N_CATEGORIES, N_REGIONS, STATE_DIM
 from brlcli.retired import RETIRED_CONFIG, retired_message
-
-DYNAMIC_CATEGORY = 3
-"""The state's category of vehicles and pedestrians (`brlcli.features.CLASS_TO_CATEGORY`)."""
 
 GATED_FORMAT_VERSION = 1
 """Version of a brake-gated model file."""

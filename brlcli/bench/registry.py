@@ -89,7 +89,7 @@ def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, 
     given twice is listed once."""
     import glob as globmod
 
-    from brlcli.policy import committee_members
+    from brlcli.agent.committee import committee_members
 
     found: list[tuple[str, str]] = []
     if model:
@@ -106,25 +106,22 @@ def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, 
             found.append((p.parent.name or p.stem, str(p)))
     for item in models or []:
         hits = sorted(globmod.glob(item)) if any(ch in item for ch in "*?[") else [item]
-        paths: list[Path] = []
+        paths: list[Path] = []  # model files, or member sets' directories (a committee assembled in memory)
         for h in hits:
             hp = Path(h)
-            if hp.is_file():
+            if hp.is_file() or committee_members(hp):
                 paths.append(hp)
             elif (hp / "model.npz").is_file():
                 paths.append(hp / "model.npz")
-            elif committee_members(hp):
-                paths.append(hp / "model.npz")  # named as a file; the member set itself is what runs
             elif hp.is_dir():
-                paths.extend(sorted({*hp.glob("*/model.npz"), *(d / "model.npz" for d in hp.iterdir()
-                                                                  if committee_members(d))}))
+                paths.extend(sorted([*hp.glob("*/model.npz"), *filter(committee_members, hp.iterdir())]))
         if not paths:
             if any(Path(h).is_dir() and any(Path(h).glob(g)) for h in hits for g in COMMITTEE_MEMBER_GLOBS):
                 raise BrlInputError(_members_without_committee(f"--models '{item}'"))
             raise BrlInputError(f"--models '{item}' holds no model.npz files")
         for p in paths:
-            where = p if p.is_file() else p.parent  # a member set runs as its directory
-            found.append((f"{p.parent.parent.name}/{p.parent.name}", str(where)))
+            run = p if p.is_dir() else p.parent
+            found.append((f"{run.parent.name}/{run.name}", str(p)))
     if not found:
         from brlcli.models import default_model_set
 
