@@ -50,15 +50,16 @@ start poses on seeds 0-17 (docs/lane-keeping-study.md, issue 34)."""
 TASK_PRESETS: dict[str, dict[str, Any]] = {
     "lane-keeping": {},
     "navigation": {"steps": 27000, "restart_below": None, "params": {"new_q": "nearest"},
-                   "branch_restart_below": [-5.0, -9.0, -9.0, -9.0], "committee": 1},
+                   "branch_restart_below": [-5.0, -9.0, -9.0, -9.0], "committee": 7},
 }
 """Overrides a task makes on top of the variant's preset (an option, --config or --set goes on top), chosen on the
 nav_validation suite (docs/navigation-study.md): navigation trains four branches, two thirds of the episodes at
 junctions, so six times the paper's t_max; without the trap restart, whose reward threshold is the lane-keeping
 task's; a new component starts from its nearest component's action values (`new_q = "nearest"`) rather than the
 optimistic constant, which otherwise makes an untried junction state look better than a known one; and a trap
-restart per branch (follow -5, turns -9), which restarts only a trapped branch; single models unless
-`--set committee=K` (a lane-keeping method's committee is not the navigation preset's)."""
+restart per branch (follow -5, turns -9), which restarts only a trapped branch; committees of seven, as shipped in
+models/brl_nav (the size chosen on nav_validation, docs/navigation-study.md section 9; `--set committee=1` trains
+single models; a lane-keeping method's committee is not the navigation preset's)."""
 
 DEFAULT_AGENT_OVERRIDES: dict[str, Any] = {"init_scatter": 1e-3}
 """Agent parameters a training run sets beyond `BRLParams()` (none of them is in the paper's Table I): the NIW
@@ -309,6 +310,8 @@ def resolve_train_config(layers: Sequence[Layer], default_variant: str = DEFAULT
     base = merge_layer(defaults, {**VARIANT_PRESETS[variant], "variant": variant}, "", defaults, open_tables=OPEN)
     task = next((layer.values["task"] for layer in reversed(layers) if "task" in layer.values), defaults["task"])
     preset = TASK_PRESETS.get(task, {}) if isinstance(task, str) else {}  # an unknown task: TrainConfig says so
+    if any(layer.values.get("driver_model") is not None for layer in layers):
+        preset = {**preset, "committee": 1}  # a gate over a given driver is one agent, whatever the presets say
     base = merge_layer(base, preset, "", defaults, open_tables=OPEN)
     cfg = resolve(TrainConfig, layers, "training", base=base, defaults=defaults, open_tables=OPEN)
     try:

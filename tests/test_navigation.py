@@ -371,3 +371,15 @@ def test_a_brake_gate_drives_over_a_shipped_member_set() -> None:
     learner = new_learner(cfg)
     assert isinstance(learner.driver, CommitteeAgent) and len(learner.driver.members) == 7  # type: ignore[attr-defined]
     assert cfg.env_actions == "stop" and not cfg.trains_driver_then_gate
+
+
+def test_the_navigation_preset_trains_the_shipped_committee_size() -> None:
+    from brlcli.config import Layer
+
+    shipped = json.loads(Path("models/brl_nav/seed_0/member_0/config.json").read_text())
+    n_members = len(list(Path("models/brl_nav/seed_0").glob("member_*")))
+    assert resolve_train_config([Layer("--task", {"task": "navigation"})]).committee == n_members == 7
+    assert shipped["config"]["steps"] == resolve_train_config([Layer("--task", {"task": "navigation"})]).steps
+    over_driver = resolve_train_config([Layer("--set", {"task": "navigation", "driver_model": "models/brl_nav/seed_0",
+                                                        "traffic": ["dense"], "r_hazard": 20.0})])
+    assert over_driver.committee == 1  # a gate over a given driver is one agent
