@@ -191,12 +191,6 @@ class CommitteeAgent:
         """The majority's greedy action under a command (a committee only acts greedily: its members train apart)."""
         if not greedy:
             raise ValueError("a committee acts greedily only; its members explore in their own training runs")
-        import os as _os
-        if _os.environ.get("BRL_BLIND"):
-            state = state.copy()
-            v = state[:30].reshape(6, 5)
-            v[:, 0] += v[:, 3]
-            v[:, 3] = 0.0
         return majority_vote(np.array([m.branch(command).action_probabilities(state) for m in self.members]))
 
     def to_arrays(self) -> dict[str, np.ndarray]:
