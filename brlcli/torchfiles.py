@@ -33,8 +33,9 @@ def load_torch_doc(path: Path, fmt: str, version: int | tuple[int, ...], what: s
         raise BrlInputError(f"{what} {path} does not exist; train one with {train_hint}")
     try:
         doc = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise BrlInputError(f"{path} is not a brl {what} ({type(exc).__name__})") from None
+    except Exception:
+        raise BrlInputError(f"{path} is not a brl {what} (not a torch file brl wrote); make one with "
+                            f"{train_hint}") from None
     if not isinstance(doc, dict) or doc.get("format") != fmt:
         raise BrlInputError(f"{path} is not a brl {what}")
     if doc.get("format_version") not in versions:

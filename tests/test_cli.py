@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import cv2
+import pytest
 
 
 def _brl(*args: str) -> subprocess.CompletedProcess:
@@ -48,3 +49,40 @@ def test_malformed_town_file_names_the_field(tmp_path: Path) -> None:
     r = _brl("preview", str(bad), "--out", str(tmp_path / "c"))
     assert r.returncode == 2
     assert "geometry.sidewalk_width_m" in r.stderr and r.stderr.strip().count("\n") == 0
+
+
+def _main(args: list[str], capsys) -> tuple[int, str]:
+    """Run brl in this process; its exit code and stderr."""
+    from brlcli.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(args)
+    return int(exit_info.value.code or 0), capsys.readouterr().err
+
+
+def test_a_negative_seed_is_refused_before_anything_is_written(tmp_path: Path, capsys) -> None:
+    for command in ("preview", "collect", "train", "train-seg", "train-il", "train-rl", "bench"):
+        out = tmp_path / command
+        code, err = _main([command, "--seed", "-1", "--out", str(out)], capsys)
+        assert code == 2 and err.startswith("brl: error:") and "--seed" in err and err.strip().count("\n") == 0
+        assert not out.exists(), command
+
+
+def test_a_file_that_is_no_model_gets_one_line_naming_it(tmp_path: Path, capsys) -> None:
+    text = tmp_path / "notes.npz"
+    text.write_text("not a model\n")
+    code, err = _main(["bench", "--model", str(text), "--out", str(tmp_path / "b")], capsys)
+    assert code == 2 and "is not a brl model (.npz): it is not a zip archive" in err and "pickle" not in err
+    code, err = _main(["bench", "--agent", "il", "--model", str(text), "--out", str(tmp_path / "c")], capsys)
+    assert code == 2 and "is not a brl IL model" in err and "Error" not in err
+    assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
+
+
+def test_an_unwritable_output_file_is_refused_before_the_work(tmp_path: Path, capsys) -> None:
+    from brlcli.errors import BrlInputError
+    from brlcli.segnet.filetools import check_new_file
+
+    with pytest.raises(BrlInputError, match="cannot write --out"):
+        check_new_file(Path("/proc/brl-figures.json"))  # a directory even root cannot write into
+    check_new_file(tmp_path / "figures.json")
+    assert not list(tmp_path.iterdir())  # the probe leaves nothing behind

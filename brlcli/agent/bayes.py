@@ -617,7 +617,13 @@ def save_model_arrays(path: str | os.PathLike[str], arrays: dict[str, np.ndarray
 def open_model_npz(path: str) -> Any:
     """The open .npz of a model file (never unpickling); a missing, foreign or corrupt file is a BrlInputError."""
     try:
+        with open(path, "rb") as fh:
+            magic = fh.read(6)
+        if not (magic.startswith(b"PK") or magic == b"\x93NUMPY"):
+            raise BrlInputError(f"model file {path} is not a brl model (.npz): it is not a zip archive")
         npz = np.load(path, allow_pickle=False)
+    except IsADirectoryError:
+        raise BrlInputError(f"model file {path} is a directory without model.npz or member_<k>/model.npz") from None
     except FileNotFoundError:
         raise BrlInputError(f"model file {path} does not exist") from None
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:

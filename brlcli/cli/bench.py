@@ -48,7 +48,7 @@ def bench(
     executor: ExecutorKind = "local",
     ray_address: RayAddress = None,
     shard: Annotated[str | None, typer.Option(help="Run slice K of N (K/N), e.g. one Docker job per shard.")] = None,
-    seed: Annotated[int, typer.Option(help="Bench seed (traffic and weather noise per episode).")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Bench seed (traffic and weather noise per episode).")] = 0,
     out: Annotated[str | None, out_option("bench", "bench.json, results.jsonl, frames/")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Skip episodes already in --out.")] = False,
 ) -> None:

@@ -18,7 +18,7 @@ def collect(
     frames: Annotated[int | None, typer.Option(help="Total recorded frames (alternative to --episodes).")] = None,
     episode_frames: Annotated[int, typer.Option(help="Recorded frames per episode.")] = 300,
     every: Annotated[int, typer.Option(help="Record every N-th simulated frame (10 fps / N).")] = 1,
-    seed: Annotated[int, typer.Option(help="Seed of routes, noise and traffic.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of routes, noise and traffic.")] = 0,
     out: Annotated[str | None, out_option("collect", "episode_NNNNN/ bags, collect.json")] = None,
     storage: Annotated[str, typer.Option(help="Bag storage: mcap (zstd chunks) or sqlite3.")] = "mcap",
     traffic: Annotated[bool, typer.Option("--traffic", help="CoRL2017 traffic (town01 20+50, town02 15+50).")]
@@ -65,7 +65,7 @@ def preview(
     out: Annotated[str, typer.Option("--out", help="Output directory for the PNGs (rewritten in place).")]
     = "out/preview",
     weathers: Annotated[str, typer.Option(help="Comma-separated weather ids or names.")] = "1,6,8,14",
-    seed: Annotated[int, typer.Option(help="Seed for traffic and rain.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed for traffic and rain.")] = 0,
 ) -> None:
     """Draw each town from above with its routes, and camera frames (RGB beside labels) in several weathers."""
     from brlcli.viz.preview import check_previews, write_previews

@@ -38,7 +38,7 @@ def train_seg(
                                                     "brl 0.1 net).")] = 0,
     select: Annotated[str, typer.Option(help="Best epoch by the first validation set's miou (category mean IoU) "
                                              "or state (mean state L1).")] = "miou",
-    seed: Annotated[int, typer.Option(help="Seed of initialisation, order and augmentation.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of initialisation, order and augmentation.")] = 0,
     workers: Annotated[int, typer.Option(help="CPU threads for torch.")] = 2,
     out: Annotated[str | None, out_option("train-seg", "segnet.pt = best epoch, calibrated; best.pt, last.pt, "
                                                        "metrics.jsonl, calibration.json")] = None,

@@ -43,7 +43,7 @@ def train(
     input: Annotated[str, typer.Option("--input", help="State source: gt (simulator labels) or estimated.")] = "gt",
     steps: Annotated[int, typer.Option(help="Learning steps per model (paper: t_max = 4500; --task navigation's "
                                             "preset: 27000).")] = 4500,
-    seed: Annotated[int, typer.Option(help="Seed of a single model.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of a single model.")] = 0,
     seeds: Annotated[str | None, typer.Option(help="Train a model set, e.g. 0-8 (overrides --seed).")] = None,
     workers: Workers = 1,
     executor: ExecutorKind = "local",
@@ -253,7 +253,7 @@ def train_rl(
     = 5_000,
     eval_suite: Annotated[str, typer.Option(help="paper (the lane-keeping test suite), nav_validation (the "
                                                  "navigation task's) or none; auto: the task's.")] = "auto",
-    seed: Annotated[int, typer.Option(help="Seed of the network, exploration and routes.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the network, exploration and routes.")] = 0,
     out: Annotated[str | None, out_option("train-rl", "drl.pt, learning_curve.csv, checkpoint/")] = None,
     resume: Resume = False,
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --input estimated (default: shipped).")]
@@ -317,7 +317,7 @@ def train_il(
     val_fraction: Annotated[float, typer.Option(help="Share of --data bags held out when no --val.")] = 0.1,
     epochs: Annotated[int, typer.Option(help="Training epochs.")] = 5,
     batch_size: Annotated[int, typer.Option(help="Batch size (>= 4).")] = 64,
-    seed: Annotated[int, typer.Option(help="Seed of initialisation, order, split and augmentation.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of initialisation, order, split and augmentation.")] = 0,
     workers: Annotated[int, typer.Option(help="CPU threads for torch.")] = 2,
     out: Annotated[str | None, out_option("train-il", "il.pt = best, last.pt, metrics.jsonl")] = None,
     resume: Resume = False,

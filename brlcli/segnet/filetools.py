@@ -64,6 +64,7 @@ def check_new_file(out: Path, what: str = "--out") -> None:
     """Refuse, before any work, an output file that is a directory or cannot be written (a missing or read-only
     directory)."""
     import os
+    import time
 
     from brlcli.errors import BrlInputError
 
@@ -73,6 +74,13 @@ def check_new_file(out: Path, what: str = "--out") -> None:
     parent = out.parent if str(out.parent) else Path(".")
     if not parent.is_dir() or not os.access(parent, os.W_OK):
         raise BrlInputError(f"cannot write {what} {out}: directory {parent} is missing or not writable")
+    probe = parent / f".brl-probe-{os.getpid()}-{time.monotonic_ns()}"  # the atomic write's temporary file goes here
+    try:
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise BrlInputError(f"cannot write {what} {out}: {exc.strerror or type(exc).__name__}; choose a writable "
+                            f"directory") from None
 
 
 def evaluate_on_bags(segnet: str | None, data: Sequence[str], calibrated: bool = True, out: Path | None = None,
