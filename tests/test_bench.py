@@ -326,3 +326,28 @@ def test_the_traffic_validation_suite_is_nav_validation_in_nocrash_traffic() -> 
     for s in specs:
         assert (s.vehicles, s.pedestrians) == NOCRASH_TRAFFIC[s.town][s.task] and s.end_on_collision
         assert s.timeout_s == nocrash_timeout_s(s.route_length_m)
+
+
+def test_a_repeated_model_benches_every_model_under_a_readable_name() -> None:
+    """Issue 36: --model A --model B runs both; two seed_0 from different sets keep their set's name."""
+    from brlcli.bench.plan import plan_bench
+    from brlcli.bench.registry import find_models
+
+    root = Path(__file__).resolve().parents[1] / "models"
+    found = find_models([str(root / "brl_gt" / "seed_0"), str(root / "brl_te" / "seed_0"),
+                         str(root / "brl_gt" / "seed_1")], None)
+    assert [n for n, _ in found] == ["brl_gt/seed_0", "brl_te/seed_0", "seed_1"]
+    plan = plan_bench("paper", "brl", [str(root / "brl_gt" / "seed_0"), str(root / "brl_gt" / "seed_1")],
+                      episodes="2")
+    assert [p.name for p in plan.policies] == ["seed_0", "seed_1"]
+    with pytest.raises(BrlInputError, match="give --agent il one --model"):
+        plan_bench("paper", "il", ["a.pt", "b.pt"])
+
+
+def test_the_bench_table_keeps_whole_names_in_a_log(tmp_path: Path) -> None:
+    """Issue 36: with stderr not a terminal, the summary table is not cut to 80 columns (no 'brl_gt/see…')."""
+    r = subprocess.run([sys.executable, "-m", "brlcli.cli", "bench", "--models", "models/brl_gt", "--episodes", "1",
+                        "--out", str(tmp_path / "b")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    table = [line for line in r.stderr.splitlines() if "│" in line]
+    assert any("brl_gt/seed_0" in line for line in table) and not any("…" in line for line in table)

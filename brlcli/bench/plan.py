@@ -3,6 +3,7 @@ is written) and the configuration record saved as bench.json; `summary_rows` giv
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,7 +45,8 @@ def bench_record(suite: str, specs: list[EpisodeSpec], policies: list[PolicySpec
             "deploy": deploy, "seed": seed, "selection": selection, "shard": list(shard_kn)}
 
 
-def plan_bench(suite: str, agent: str = "brl", model: str | None = None, models: list[str] | None = None,
+def plan_bench(suite: str, agent: str = "brl", model: str | Sequence[str] | None = None,
+               models: list[str] | None = None,
                deploy: str = "gt", segnet: str | None = None, conditions: str | None = None,
                tasks: str | None = None, weathers: str | None = None, episodes: str | None = None,
                shard_text: str | None = None, seed: int = 0) -> BenchPlan:
@@ -60,9 +62,12 @@ def plan_bench(suite: str, agent: str = "brl", model: str | None = None, models:
         policies = [PolicySpec("brl", name, {"model": path, "deploy": deploy, "segnet": segnet})
                     for name, path in find_models(model, models)]
     else:
-        if models:
-            raise BrlInputError(f"--models is for brl model sets; give --agent {agent} one --model")
-        policies = [PolicySpec(agent, name, opts) for name, opts in baseline_specs(agent, model, deploy, segnet)]
+        given = [model] if isinstance(model, str) else list(model or [])
+        if models or len(given) > 1:
+            raise BrlInputError(f"--models and a repeated --model are for brl models; give --agent {agent} one "
+                                f"--model (one bench per baseline model, then brl report merges them)")
+        policies = [PolicySpec(agent, name, opts)
+                    for name, opts in baseline_specs(agent, given[0] if given else None, deploy, segnet)]
     for p in policies:  # load every model once here: a bad file fails before anything is written
         check_suite_task(suite, build_spec(p))
     selection = {"conditions": conditions, "tasks": tasks, "weathers": weathers, "episodes": episodes}

@@ -7,6 +7,7 @@ the BRL models of a bench; `baseline_specs` gives a baseline agent's policy opti
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -84,16 +85,16 @@ def _members_without_committee(where: str) -> str:
             "as a set (--models DIR, or --model DIR/seed_N)")
 
 
-def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, str]]:
-    """(policy name, model path) pairs from --model FILE or --models DIR|GLOB (a model set such as seed_0..8); a file
-    given twice is listed once."""
+def find_models(model: str | Sequence[str] | None, models: list[str] | None) -> list[tuple[str, str]]:
+    """(policy name, model path) pairs from --model FILE (repeatable) or --models DIR|GLOB (a model set such as
+    seed_0..8); a file given twice is listed once; models named alike (seed_0 of two sets) take their parent's name."""
     import glob as globmod
 
     from brlcli.agent.committee import committee_members
 
     found: list[tuple[str, str]] = []
-    if model:
-        p = Path(model)
+    for one in [model] if isinstance(model, str) else list(model or []):
+        p = Path(one)
         if committee_members(p):  # a member set: the policy assembles the committee
             found.append((p.resolve().name, str(p)))
         else:
@@ -134,6 +135,16 @@ def find_models(model: str | None, models: list[str] | None) -> list[tuple[str, 
         unique.setdefault(Path(path).resolve(), (name, path))
     found = list(unique.values())
     names = [n for n, _ in found]
+    if len(set(names)) != len(names):  # e.g. --model a/seed_0 --model b/seed_0: name them a/seed_0, b/seed_0
+        found = [(_qualified(name, path) if names.count(name) > 1 else name, path) for name, path in found]
+        names = [n for n, _ in found]
     if len(set(names)) != len(names):
-        raise BrlInputError("two models have the same name; give them distinct directories")
+        raise BrlInputError(f"two models are both named '{next(n for n in names if names.count(n) > 1)}'; give "
+                            f"them distinct directories")
     return found
+
+
+def _qualified(name: str, path: str) -> str:
+    """A policy name with one more directory level: seed_0 -> set/seed_0."""
+    run = Path(path) if Path(path).is_dir() else Path(path).parent
+    return name if "/" in name else f"{run.resolve().parent.name}/{name}"

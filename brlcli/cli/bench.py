@@ -29,8 +29,9 @@ def bench(
     agent: Annotated[str, typer.Option(help="brl (trained models), autopilot (privileged expert), oracle (the "
                                             "expert restricted to the BRL agent's actions), mp (modular pipeline), "
                                             "il (imitation learning), dqn (deep RL).")] = "brl",
-    model: Annotated[str | None, typer.Option(help="A trained model: BRL model.npz or run dir; il: il.pt or its dir; "
-                                                   "dqn: drl.pt or its dir (default: the shipped one).")] = None,
+    model: Annotated[list[str] | None, typer.Option(help="A trained model: BRL model.npz or run dir (repeatable); il: "
+                                                         "il.pt or its dir; dqn: drl.pt or its dir (default: the "
+                                                         "shipped one).")] = None,
     models: Annotated[list[str] | None, typer.Option(help="A model set: a directory of seed_N/ runs, or a glob "
                                                           "(default: the shipped GT set models/brl_gt).")] = None,
     deploy: Annotated[str, typer.Option(help="Deployment input: gt or estimated.")] = "gt",
@@ -84,11 +85,11 @@ def bench(
                             executor=ex)
     table = Table(title=f"{suite}: {len(results)} episodes in {out_dir}")
     for col in ("policy", "setting", "episodes", "success", "collision-free", "either", "km"):
-        table.add_column(col, justify="right")
+        table.add_column(col, justify="right", overflow="fold")  # names wrap, never cut to an ellipsis
     for row in summary_rows(plan, results):
         table.add_row(row["policy"], row["setting"], str(row["episodes"]), f"{row['success']:.0%}",
                       f"{row['collision_free']:.0%}", _share(row["either"]), f"{row['km']:.2f}")
-    console.print(table)
+    stderr_console(wide=True).print(table)  # a batch job's log gets the whole table, not rich's 80 columns
     typer.echo(str(out_dir))
 
 

@@ -87,10 +87,10 @@ def make_executor(kind: str, workers: int, ray_address: str | None) -> Executor:
 
 
 def stderr_console(wide: bool = False) -> Console:
-    """The console for progress and summaries (stderr; 120 columns when not a terminal and `wide`)."""
+    """The console for progress and summaries (stderr; 160 columns when not a terminal and `wide`)."""
     from rich.console import Console
 
-    return Console(stderr=True, width=None if (sys.stderr.isatty() or not wide) else 120)
+    return Console(stderr=True, width=None if (sys.stderr.isatty() or not wide) else 160)
 
 
 def table_console() -> Console:
