@@ -31,6 +31,7 @@ from torch import nn
 
 from brlcli.config import Layer, check_known_keys, resolve
 from brlcli.curve import CURVE_FILE, Evaluator, write_curve
+from brlcli.devices import check_device_name, resolve_device
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM
 from brlcli.outdir import refuse_existing
@@ -81,8 +82,10 @@ class DeepRLConfig:
     start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m (brl train's option)
     start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
     camera_pitch_deg: float = -15.0  # pitch of the state camera (deg), as brl train's
+    device: str = "cpu"  # SB3's device for the networks: cpu (the default), cuda, cuda:N or auto (brlcli.devices)
 
     def __post_init__(self) -> None:
+        check_device_name(self.device, "--device")
         if self.algo not in ALGOS:
             raise BrlInputError(f"unknown deep RL algorithm '{self.algo}'; choose from {', '.join(ALGOS)}")
         check_input_source(self.input, "--input")
@@ -154,6 +157,7 @@ def resolve_deep_rl_config(layers: Sequence[Layer]) -> DeepRLConfig:
     from brlcli.sim.town import load_town
 
     cfg = resolve(DeepRLConfig, layers, "deep RL")
+    cfg = replace(cfg, device=resolve_device(cfg.device))  # recorded as the device it runs on
     if cfg.segnet is not None and cfg.input != "estimated":
         raise BrlInputError("--segnet is only used with --input estimated")
     if cfg.input == "estimated" and cfg.segnet is None:
@@ -179,7 +183,8 @@ def save_model(path: Path, q_net: nn.Module, cfg: DeepRLConfig, env_steps: int) 
     """Write a Q-network file (state dict, architecture, training config) atomically."""
     save_torch_doc(path, DRL_FORMAT, DRL_FORMAT_VERSION, {
         "algo": cfg.algo, "net_arch": list(cfg.net_arch), "state_dim": cfg.state_dim, "n_actions": len(ACTIONS),
-        "env_steps": env_steps, "train": json.dumps(cfg.to_dict(), sort_keys=True), "state_dict": q_net.state_dict()})
+        "env_steps": env_steps, "train": json.dumps(cfg.to_dict(), sort_keys=True),
+        "state_dict": {k: v.cpu() for k, v in q_net.state_dict().items()}})
 
 
 def load_model(path: str | Path) -> tuple[nn.Sequential, dict[str, Any]]:
@@ -298,7 +303,7 @@ def _build_dqn(cfg: DeepRLConfig, env: Any) -> Any:
                 learning_starts=cfg.learning_starts, batch_size=cfg.batch_size, gamma=cfg.gamma,
                 train_freq=cfg.train_freq, target_update_interval=cfg.target_update_interval,
                 exploration_fraction=cfg.exploration_fraction, exploration_final_eps=cfg.exploration_final_eps,
-                policy_kwargs={"net_arch": list(cfg.net_arch)}, seed=cfg.seed, device="cpu", verbose=0)
+                policy_kwargs={"net_arch": list(cfg.net_arch)}, seed=cfg.seed, device=cfg.device, verbose=0)
     # SB3's default logger makes an empty /tmp/SB3-<date> directory on every learn(); brl logs its own curve
     model.set_logger(Logger(folder=None, output_formats=[]))
     return model

@@ -25,7 +25,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ import torch
 from torch import nn
 
 from brlcli.config import check_known_keys
+from brlcli.devices import check_device_name, prepare_cuda_determinism, resolve_device, to_device_tensor
 from brlcli.errors import BrlInputError
 from brlcli.outdir import refuse_existing
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
@@ -139,7 +140,8 @@ def select_branch(outputs: torch.Tensor, branch: torch.Tensor) -> torch.Tensor:
 def save_il(path: Path, net: ILNet, extra: dict[str, Any]) -> None:
     """Write weights, architecture and `extra` (plain data and tensors only) atomically."""
     save_torch_doc(path, IL_FORMAT, IL_FORMAT_VERSION, {"arch": net.cfg.to_dict(), "branches": list(BRANCH_NAMES),
-                                                       "outputs": list(OUTPUT_NAMES), "state_dict": net.state_dict(),
+                                                       "outputs": list(OUTPUT_NAMES),
+                                                       "state_dict": {k: v.cpu() for k, v in net.state_dict().items()},
                                                        "extra": extra})
 
 
@@ -238,6 +240,22 @@ def _speed_tensor(speed_kmh: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.asarray(speed_kmh, np.float32).reshape(-1, 1) / SPEED_SCALE_KMH)
 
 
+def augment_on_device(rgb_u8: torch.Tensor, gen: torch.Generator, jitter: float) -> torch.Tensor:
+    """`_augment` on a device's uint8 images (N, H, W, 3): the same jitter, drawn from the device's generator."""
+    x = rgb_u8.float()
+    if jitter <= 0:
+        return x
+    n, dev = x.shape[0], x.device
+
+    def uniform(low: float, high: float, *shape: int) -> torch.Tensor:
+        return torch.empty(shape, device=dev).uniform_(low, high, generator=gen)
+
+    mean = x.mean(dim=(1, 2, 3), keepdim=True)
+    contrast = uniform(1 - jitter, 1 + jitter, n, 1, 1, 1)
+    gain = uniform(1 - jitter, 1 + jitter, n, 1, 1, 1) * uniform(1 - jitter / 2, 1 + jitter / 2, n, 1, 1, 3)
+    return (((x - mean) * contrast + mean).clamp(0, 255) * gain).clamp(0, 255)
+
+
 def _augment(rgb: np.ndarray, rng: np.random.Generator, jitter: float) -> np.ndarray:
     """Per-image brightness, contrast and per-channel gain (seeded, batched)."""
     x = rgb.astype(np.float32)
@@ -269,8 +287,10 @@ class ILTrainConfig:
     speed_weight: float = 0.05
     colour_jitter: float = 0.2
     net: dict[str, Any] = field(default_factory=lambda: ILNetConfig().to_dict())
+    device: str = "cpu"  # cpu (bit-identical to brl before devices), cuda or cuda:N, auto (brlcli.devices)
 
     def __post_init__(self) -> None:
+        check_device_name(self.device, "--device")
         if self.epochs < 1 or self.batch_size < 4:
             raise BrlInputError("--epochs must be >= 1 and --batch-size >= 4 (BatchNorm needs batches)")
         if self.threads < 1:
@@ -307,8 +327,9 @@ def _losses(net: ILNet, x: torch.Tensor, speed: torch.Tensor, branch: torch.Tens
 
 
 def evaluate_il(net: ILNet, data: ILData, mean: np.ndarray, std: np.ndarray, cfg: ILTrainConfig,
-                batch: int = 256) -> dict[str, float]:
-    """Validation losses: weighted total, MSE per output, speed MSE, steer MAE, and the loss per branch."""
+                batch: int = 256, device: str = "cpu") -> dict[str, float]:
+    """Validation losses: weighted total, MSE per output, speed MSE, steer MAE, and the loss per branch (the net on
+    `device`)."""
     net.eval()
     w = torch.tensor(cfg.loss_weights, dtype=torch.float32)
     sq = np.zeros((len(data), 3))
@@ -317,7 +338,8 @@ def evaluate_il(net: ILNet, data: ILData, mean: np.ndarray, std: np.ndarray, cfg
     with torch.inference_mode():
         for i in range(0, len(data), batch):
             sl = slice(i, i + batch)
-            out, sp = net(_to_tensor(data.rgb[sl], mean, std), _speed_tensor(data.speed_kmh[sl]))
+            out, sp = net(_to_tensor(data.rgb[sl], mean, std).to(device), _speed_tensor(data.speed_kmh[sl]).to(device))
+            out, sp = out.cpu(), sp.cpu()
             pred = select_branch(out, torch.from_numpy(data.branch[sl])).numpy()
             sq[sl] = (pred - data.target[sl]) ** 2
             abs_steer[sl] = np.abs(pred[:, 0] - data.target[sl, 0])
@@ -352,6 +374,7 @@ def train_il(cfg: ILTrainConfig, data: list[str], out: Path, val: list[str] | No
              progress: Callable[[dict], None] | None = None) -> dict[str, Any]:
     """Train the branched CIL net on bags; best (validation loss) -> out/il.pt, resume point -> out/last.pt."""
     out = Path(out)
+    cfg = replace(cfg, device=resolve_device(cfg.device))  # recorded as the device it runs on
     net_cfg = ILNetConfig.from_dict(cfg.net)
     h, w = net_cfg.input_height, net_cfg.input_width
     all_train = load_frames(data, h, w)
@@ -367,16 +390,21 @@ def train_il(cfg: ILTrainConfig, data: list[str], out: Path, val: list[str] | No
     out.mkdir(parents=True, exist_ok=True)
     if not (resume and (out / "last.pt").exists()):
         atomic_write_json(out / "config.json", provenance(config, kind="train-il"))
+    device = cfg.device
     torch.set_num_threads(cfg.threads)
-    torch.use_deterministic_algorithms(True)
-    torch.manual_seed(cfg.seed)
+    if device == "cpu":
+        torch.use_deterministic_algorithms(True)
+    else:
+        prepare_cuda_determinism()
+    torch.manual_seed(cfg.seed)  # CUDA's generators too
     rgb01 = train.rgb.reshape(-1, 3).astype(np.float32) / 255.0
     mean = rgb01.mean(0).astype(np.float32)
     std = (rgb01.std(0) + 1e-6).astype(np.float32)
     del rgb01
-    net = ILNet(net_cfg)
+    net = ILNet(net_cfg).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    weights = torch.tensor(cfg.loss_weights, dtype=torch.float32)
+    weights = torch.tensor(cfg.loss_weights, dtype=torch.float32).to(device)
+    gen = None if device == "cpu" else torch.Generator(device).manual_seed(cfg.seed)  # the device's augmentation
     steps_per_epoch = len(train) // cfg.batch_size
     total = steps_per_epoch * cfg.epochs
     rng = np.random.default_rng(cfg.seed)
@@ -389,48 +417,71 @@ def train_il(cfg: ILTrainConfig, data: list[str], out: Path, val: list[str] | No
     if resume and (out / "last.pt").exists():
         state = load_il_checkpoint(out / "last.pt")
         ex = state["extra"]
-        if ex.get("train_config") != cfg.to_dict() or ex.get("data_digest") != digest:
+        if {"device": "cpu", **ex.get("train_config", {})} != cfg.to_dict() or ex.get("data_digest") != digest:
             raise BrlInputError(f"{out} was trained with other options or data; resume with the same ones")
         net.load_state_dict(state["state_dict"])
         opt.load_state_dict(ex["optimizer"])
         torch.set_rng_state(ex["torch_rng"])
         rng.bit_generator.state = json.loads(ex["numpy_rng"])
+        if gen is not None:
+            gen.set_state(ex["device_rng"])
+            torch.cuda.set_rng_state(ex["cuda_rng"], torch.device(device))
         start_epoch, best = ex["epoch"], ex["best"]
         history = json.loads(ex["history"])
     x_speed = train.speed_kmh
+    if gen is not None:  # resident on the GPU when it fits (pinned host memory otherwise)
+        dev_rgb = to_device_tensor(train.rgb, device)
+        dev_speed = to_device_tensor(np.asarray(x_speed, np.float32).reshape(-1, 1) / SPEED_SCALE_KMH, device)
+        dev_branch, dev_target = to_device_tensor(train.branch, device), to_device_tensor(train.target, device)
+        mean_t, std_t = torch.from_numpy(mean).to(device), torch.from_numpy(std).to(device)
     t0 = time.perf_counter()
     for epoch in range(start_epoch, cfg.epochs):
         net.train()
         order = rng.permutation(len(train))
         sums = np.zeros(4)
+        device_sums = None if gen is None else torch.zeros(4, dtype=torch.float64, device=device)
         for b in range(steps_per_epoch):
             it = epoch * steps_per_epoch + b
             for g in opt.param_groups:  # cosine decay to 5 % over all iterations
                 g["lr"] = cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * it / total)))
             idx = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])
-            x = _to_tensor(_augment(train.rgb[idx], rng, cfg.colour_jitter), mean, std)
-            mse, speed_mse = _losses(net, x, _speed_tensor(x_speed[idx]), torch.from_numpy(train.branch[idx]),
-                                     torch.from_numpy(train.target[idx]), weights)
+            if gen is None:
+                x = _to_tensor(_augment(train.rgb[idx], rng, cfg.colour_jitter), mean, std)
+                mse, speed_mse = _losses(net, x, _speed_tensor(x_speed[idx]), torch.from_numpy(train.branch[idx]),
+                                         torch.from_numpy(train.target[idx]), weights)
+            else:
+                rgb, speed, branch, target = (_rows_on(t, idx, device) for t in (dev_rgb, dev_speed, dev_branch,
+                                                                                  dev_target))
+                x = ((augment_on_device(rgb, gen, cfg.colour_jitter) / 255.0 - mean_t) / std_t).permute(0, 3, 1, 2)
+                mse, speed_mse = _losses(net, x.contiguous(), speed, branch, target, weights)
             loss = mse @ weights + cfg.speed_weight * speed_mse
             opt.zero_grad()
             loss.backward()
             opt.step()
-            sums += np.array([float(loss.detach()), *mse.detach().numpy()])
+            if gen is None:
+                sums += np.array([float(loss.detach()), *mse.detach().numpy()])
+            else:  # summed on the GPU: no sync per step
+                device_sums += torch.cat([loss.detach()[None], mse.detach()]).double()
+        if gen is not None:
+            sums = device_sums.cpu().numpy()
         mean_train = sums / steps_per_epoch
         record: dict[str, Any] = {"epoch": epoch + 1, "train_loss": float(mean_train[0]),
                                   **{f"train_mse_{n}": float(v) for n, v in zip(OUTPUT_NAMES, mean_train[1:],
                                                                                 strict=True)},
                                   "wall_s": round(time.perf_counter() - t0, 1)}
         if val_data is not None and len(val_data):
-            record["val"] = evaluate_il(net, val_data, mean, std, cfg)
+            record["val"] = evaluate_il(net, val_data, mean, std, cfg, device=device)
         history.append(record)
         score = record["val"]["loss"] if "val" in record else record["train_loss"]
         if score < best:
             best = score
             save_il(out / "il.pt", net, {**meta, "epoch": epoch + 1, "metrics": json.dumps(record)})
-        save_il(out / "last.pt", net, {**meta, "epoch": epoch + 1, "best": best, "history": json.dumps(history),
-                                       "optimizer": opt.state_dict(), "torch_rng": torch.get_rng_state(),
-                                       "numpy_rng": json.dumps(rng.bit_generator.state)})
+        resume_point = {**meta, "epoch": epoch + 1, "best": best, "history": json.dumps(history),
+                        "optimizer": opt.state_dict(), "torch_rng": torch.get_rng_state(),
+                        "numpy_rng": json.dumps(rng.bit_generator.state)}
+        if gen is not None:
+            resume_point.update(device_rng=gen.get_state(), cuda_rng=torch.cuda.get_rng_state(torch.device(device)))
+        save_il(out / "last.pt", net, resume_point)
         atomic_write_bytes(out / "metrics.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n"
                                                          for r in history).encode())
         if progress:
@@ -438,6 +489,12 @@ def train_il(cfg: ILTrainConfig, data: list[str], out: Path, val: list[str] | No
     return {"epochs": len(history), "best_val_loss": best, "train_frames": len(train),
             "val_frames": meta["val_frames"], "exact_pairs": all_train.exact_pairs,
             "lagged_pairs": all_train.lagged_pairs, "history": history, "model": str(out / "il.pt")}
+
+
+def _rows_on(t: torch.Tensor, idx: np.ndarray, device: str) -> torch.Tensor:
+    """Rows `idx` of a resident (or pinned host) tensor, on `device`."""
+    rows = t[torch.from_numpy(idx).to(t.device)]
+    return rows if rows.device.type != "cpu" else rows.pin_memory().to(device, non_blocking=True)
 
 
 # ----------------------------------------------------------------------------------------------------- policy

@@ -37,6 +37,8 @@ ExecutorKind = Annotated[str, typer.Option("--executor", help="Where tasks run: 
 RayAddress = Annotated[str | None, typer.Option(help="--executor ray: HOST:PORT of a cluster's head, auto (a running "
                                                      "cluster) or local (a new local instance). Default: a running "
                                                      "cluster if there is one, else a local instance.")]
+Device = Annotated[str, typer.Option("--device", help="Where torch runs: cpu (the default; bit-identical results), "
+                                                    "cuda, cuda:N, or auto (cuda when torch sees a GPU).")]
 Resume = Annotated[bool, typer.Option("--resume", help="Continue an interrupted run in --out (finished work is kept).")]
 ConfigFile = Annotated[str | None, typer.Option("--config", help="TOML (or .json) file of configuration overrides "
                                                                  "(the keys --print-config shows), under the options.")]

@@ -9,6 +9,7 @@ import typer
 
 from brlcli.cli.common import (
     ConfigFile,
+    Device,
     PrintConfig,
     Resume,
     Sets,
@@ -40,6 +41,7 @@ def train_seg(
                                              "or state (mean state L1).")] = "miou",
     seed: Annotated[int, typer.Option(min=0, help="Seed of initialisation, order and augmentation.")] = 0,
     workers: Annotated[int, typer.Option(help="CPU threads for torch.")] = 2,
+    device: Device = "cpu",
     out: Annotated[str | None, out_option("train-seg", "segnet.pt = best epoch, calibrated; best.pt, last.pt, "
                                                        "metrics.jsonl, calibration.json")] = None,
     resume: Resume = False,
@@ -53,7 +55,8 @@ def train_seg(
 
     options = {"epochs": ("epochs", epochs), "batch_size": ("batch_size", batch_size),
                "class_weights": ("class_weighting", class_weights), "fine_channels": ("net.fine", fine_channels),
-               "select": ("select", select), "seed": ("seed", seed), "workers": ("threads", workers)}
+               "select": ("select", select), "seed": ("seed", seed), "workers": ("threads", workers),
+               "device": ("device", device)}
     cfg = resolve(SegTrainConfig, command_layers(config, given(ctx, options), set_), "segmentation")
     if print_config_:
         print_config(cfg)
@@ -110,13 +113,17 @@ def eval_seg(
     uncalibrated: Annotated[bool, typer.Option("--uncalibrated", help="Ignore the file's calibration (logit "
                                                                      "offsets).")] = False,
     out: Annotated[Path | None, typer.Option("--out", help="Also write the figures to this JSON file.")] = None,
+    device: Device = "cpu",
 ) -> None:
     """IoU and the state error (L1 between GT and estimated states, bias, area ratios) of a net on bags."""
+    from brlcli.devices import resolve_device
     from brlcli.segnet.filetools import evaluate_on_bags
 
+    device = resolve_device(device)
     console = stderr_console()
     with console.status("reading bags") as status:
-        result = evaluate_on_bags(segnet, data, calibrated=not uncalibrated, out=out, status=status.update)
+        result = evaluate_on_bags(segnet, data, calibrated=not uncalibrated, out=out, status=status.update,
+                                  device=device)
     path = result["segnet"]
     if result["calibration"] == "none in file":
         console.print(f"note: {path} carries no calibration (format {result['format_version']})")
@@ -131,13 +138,16 @@ def calibrate_seg(
                                                  "net's training bags, not the ones you report on).")],
     out: Annotated[Path, typer.Option("--out", help="The calibrated net's file (must not exist).")],
     segnet: Annotated[str | None, typer.Option(help="Segmentation-net file (default: the shipped one).")] = None,
+    device: Device = "cpu",
 ) -> None:
     """Fit a net's per-class logit offsets so that its labels give the states of the ground truth."""
+    from brlcli.devices import resolve_device
     from brlcli.segnet.filetools import calibrate_on_bags
 
+    device = resolve_device(device)
     console = stderr_console()
     with console.status("reading bags") as status:
-        record = calibrate_on_bags(segnet, data, out, status=status.update)
+        record = calibrate_on_bags(segnet, data, out, status=status.update, device=device)
     name = record["fitted_on"]
     table_console().print(seg_table({f"{name} before": record["sets"][name]["uncalibrated"],
                                      f"{name} after": record["sets"][name]["calibrated"]}, f"{out}"))

@@ -9,6 +9,7 @@ import typer
 
 from brlcli.cli.common import (
     ConfigFile,
+    Device,
     ExecutorKind,
     LazyProgress,
     PrintConfig,
@@ -254,6 +255,7 @@ def train_rl(
     eval_suite: Annotated[str, typer.Option(help="paper (the lane-keeping test suite), nav_validation (the "
                                                  "navigation task's) or none; auto: the task's.")] = "auto",
     seed: Annotated[int, typer.Option(min=0, help="Seed of the network, exploration and routes.")] = 0,
+    device: Device = "cpu",
     out: Annotated[str | None, out_option("train-rl", "drl.pt, learning_curve.csv, checkpoint/")] = None,
     resume: Resume = False,
     segnet: Annotated[str | None, typer.Option(help="Segmentation net for --input estimated (default: shipped).")]
@@ -273,7 +275,7 @@ def train_rl(
     options = {"algo": ("algo", algo), "task": ("task", task), "town": ("town", town),
                "weather": ("weather", get_weather(weather).id), "input": ("input", input), "steps": ("steps", steps),
                "eval_every": ("eval_every", eval_every), "eval_suite": ("eval_suite", eval_suite),
-               "seed": ("seed", seed), "segnet": ("segnet", segnet)}
+               "seed": ("seed", seed), "segnet": ("segnet", segnet), "device": ("device", device)}
     cfg = resolve_deep_rl_config(command_layers(config, given(ctx, options), set_))
     if print_config_:
         print_config(cfg)
@@ -319,6 +321,7 @@ def train_il(
     batch_size: Annotated[int, typer.Option(help="Batch size (>= 4).")] = 64,
     seed: Annotated[int, typer.Option(min=0, help="Seed of initialisation, order, split and augmentation.")] = 0,
     workers: Annotated[int, typer.Option(help="CPU threads for torch.")] = 2,
+    device: Device = "cpu",
     out: Annotated[str | None, out_option("train-il", "il.pt = best, last.pt, metrics.jsonl")] = None,
     resume: Resume = False,
     config: ConfigFile = None,
@@ -331,7 +334,8 @@ def train_il(
     from brlcli.config import command_layers, resolve
 
     options = {"val_fraction": ("val_fraction", val_fraction), "epochs": ("epochs", epochs),
-               "batch_size": ("batch_size", batch_size), "seed": ("seed", seed), "workers": ("threads", workers)}
+               "batch_size": ("batch_size", batch_size), "seed": ("seed", seed), "workers": ("threads", workers),
+               "device": ("device", device)}
     cfg = resolve(ILTrainConfig, command_layers(config, given(ctx, options), set_), "imitation-learning")
     if print_config_:
         print_config(cfg)

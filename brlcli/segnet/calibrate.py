@@ -104,11 +104,12 @@ MAX_FRAMES = 600
 
 
 def calibrate(net: SegNet, mean: np.ndarray, std: np.ndarray, frames: Sequence[tuple[np.ndarray, np.ndarray]],
-              progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, int]:
-    """Fit a net's per-class logit offsets on labelled (RGB, labels) frames; returns them and the frames used."""
+              progress: Callable[[str], None] | None = None, device: str = "cpu") -> tuple[np.ndarray, int]:
+    """Fit a net's per-class logit offsets on labelled (RGB, labels) frames (the net's logits on `device`); returns
+    them and the frames used."""
     if not frames:
         raise BrlInputError("no frames to calibrate the segmentation net on")
     pick = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), MAX_FRAMES)).round().astype(int))
     rgb = np.stack([frames[i][0] for i in pick])
     labels = np.stack([frames[i][1] for i in pick])
-    return fit_logit_offsets(batch_logits(net, rgb, mean, std), labels, progress), len(pick)
+    return fit_logit_offsets(batch_logits(net, rgb, mean, std, device=device), labels, progress), len(pick)

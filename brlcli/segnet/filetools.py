@@ -16,28 +16,31 @@ from brlcli.segnet.train import evaluate
 Frames = Sequence[tuple[np.ndarray, np.ndarray]]
 
 
-def evaluate_file(path: Path, sets: dict[str, Frames], calibrated: bool = True) -> dict[str, Any]:
-    """IoU and state error of a net file on named sets of labelled frames (its calibration applied, or not)."""
+def evaluate_file(path: Path, sets: dict[str, Frames], calibrated: bool = True, device: str = "cpu"
+                  ) -> dict[str, Any]:
+    """IoU and state error of a net file on named sets of labelled frames (its calibration applied, or not), the
+    net run on `device`."""
     net, meta = load_segnet(path)
     _check_size(path, meta, sets)
     offsets = meta["logit_offsets"] if calibrated else None
     mean, std = np.asarray(meta["mean"], np.float32), np.asarray(meta["std"], np.float32)
     return {"segnet": str(path), "format_version": meta["format_version"],
             "calibration": "applied" if offsets is not None else ("none in file" if calibrated else "ignored"),
-            "sets": {name: evaluate(net, frames, mean, std, offsets) for name, frames in sets.items()}}
+            "device": device,
+            "sets": {name: evaluate(net, frames, mean, std, offsets, device=device) for name, frames in sets.items()}}
 
 
 def calibrate_file(path: Path, frames: Frames, out: Path, fitted_on: str,
-                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                   progress: Callable[[str], None] | None = None, device: str = "cpu") -> dict[str, Any]:
     """Fit a net file's logit offsets on labelled frames and write the calibrated net to `out` (format 2)."""
     net, meta = load_segnet(path, deployable=False)
     _check_size(path, meta, {fitted_on: frames})
     mean, std = np.asarray(meta["mean"], np.float32), np.asarray(meta["std"], np.float32)
-    offsets, used = calibrate(net, mean, std, frames, progress)
+    offsets, used = calibrate(net, mean, std, frames, progress, device=device)
     record = {"fitted_on": fitted_on, "frames": used, "objective": "mean state L1", "source": str(path),
-              "logit_offsets": [round(float(v), 6) for v in offsets],
-              "sets": {fitted_on: {"uncalibrated": evaluate(net, frames, mean, std),
-                                   "calibrated": evaluate(net, frames, mean, std, offsets)}}}
+              "logit_offsets": [round(float(v), 6) for v in offsets], "device": device,
+              "sets": {fitted_on: {"uncalibrated": evaluate(net, frames, mean, std, device=device),
+                                   "calibrated": evaluate(net, frames, mean, std, offsets, device=device)}}}
     extra = {k: v for k, v in meta.items() if k not in ("format_version", "logit_offsets", "calibration")}
     save_checkpoint(out, net, {**extra, "logit_offsets": [float(v) for v in offsets],
                                "calibration": json.dumps(record)})
@@ -84,7 +87,7 @@ def check_new_file(out: Path, what: str = "--out") -> None:
 
 
 def evaluate_on_bags(segnet: str | None, data: Sequence[str], calibrated: bool = True, out: Path | None = None,
-                     status: Callable[[str], None] | None = None) -> dict[str, Any]:
+                     status: Callable[[str], None] | None = None, device: str = "cpu") -> dict[str, Any]:
     """`brl eval-seg`: a net file (default: the shipped one) on each --data set of bags; the figures also to `out`
     (JSON, with their provenance)."""
     from brlcli.bags import find_bags
@@ -102,16 +105,16 @@ def evaluate_on_bags(segnet: str | None, data: Sequence[str], calibrated: bool =
     frames = {name: load_frames(bags) for name, bags in sets.items()}
     if status:
         status("segmenting")
-    result = evaluate_file(path, frames, calibrated=calibrated)
+    result = evaluate_file(path, frames, calibrated=calibrated, device=device)
     if out is not None:
         atomic_write_json(out, provenance({"segnet": str(path), "data": {k: [str(b) for b in v]
                                                                           for k, v in sets.items()},
-                                           "uncalibrated": not calibrated}) | {"results": result})
+                                           "uncalibrated": not calibrated, "device": device}) | {"results": result})
     return result
 
 
 def calibrate_on_bags(segnet: str | None, data: Sequence[str], out: Path,
-                      status: Callable[[str], None] | None = None) -> dict[str, Any]:
+                      status: Callable[[str], None] | None = None, device: str = "cpu") -> dict[str, Any]:
     """`brl calibrate-seg`: fit a net file's logit offsets (default: the shipped net) on held-out bags; the
     calibrated net goes to `out`, which must not exist."""
     from brlcli.bags import find_bags
@@ -130,4 +133,4 @@ def calibrate_on_bags(segnet: str | None, data: Sequence[str], out: Path,
     frames = load_frames(bags)
     name = ",".join(set_name(d) for d in data)
     return calibrate_file(path, frames, Path(out), name,
-                          progress=(lambda m: status(f"calibrating: {m}")) if status else None)
+                          progress=(lambda m: status(f"calibrating: {m}")) if status else None, device=device)

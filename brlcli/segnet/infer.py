@@ -33,14 +33,29 @@ def normalise(rgb: np.ndarray, mean: np.ndarray, std: np.ndarray) -> torch.Tenso
     return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2)))
 
 
-def batch_logits(net: SegNet, rgb: np.ndarray, mean: np.ndarray, std: np.ndarray, batch: int = 32) -> np.ndarray:
-    """Class logits (N, 13, H, W) float32 of RGB images (N, H, W, 3), in batches (evaluation, calibration)."""
+def batch_logits(net: SegNet, rgb: np.ndarray, mean: np.ndarray, std: np.ndarray, batch: int = 32,
+                 device: str = "cpu") -> np.ndarray:
+    """Class logits (N, 13, H, W) float32 of RGB images (N, H, W, 3), in batches (evaluation, calibration), on
+    `device` (the net is moved there; on CUDA the images are normalised there too)."""
     net.eval()
     out = np.empty((len(rgb), net.cfg.num_classes, *rgb.shape[1:3]), np.float32)
     with torch.inference_mode():
+        if device == "cpu":
+            for i in range(0, len(rgb), batch):
+                out[i : i + batch] = net(normalise(rgb[i : i + batch], mean, std))[0].numpy()
+            return out
+        net.to(device)
+        mean_t = torch.as_tensor(mean, dtype=torch.float32, device=device)
+        std_t = torch.as_tensor(std, dtype=torch.float32, device=device)
         for i in range(0, len(rgb), batch):
-            out[i : i + batch] = net(normalise(rgb[i : i + batch], mean, std))[0].numpy()
+            x = torch.from_numpy(np.ascontiguousarray(rgb[i : i + batch])).to(device, non_blocking=True)
+            out[i : i + batch] = net(normalise_on_device(x, mean_t, std_t))[0].float().cpu().numpy()
     return out
+
+
+def normalise_on_device(rgb: torch.Tensor, mean: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
+    """RGB images (N, H, W, 3) in 0..255 on a device -> the net's input (N, 3, H, W) there (as `normalise`)."""
+    return ((rgb.float() / 255.0 - mean) / std).permute(0, 3, 1, 2).contiguous()
 
 
 class LabelNet(nn.Module):

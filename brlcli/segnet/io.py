@@ -26,8 +26,9 @@ CLASS_NAMES = [c.name.lower() for c in CarlaClass]
 
 def save_checkpoint(path: Path, net: SegNet, extra: dict[str, Any]) -> None:
     """Write weights, architecture, classes and `extra` (plain data and tensors only) atomically."""
+    weights = {k: v.cpu() for k, v in net.state_dict().items()}  # a net trained on a GPU loads anywhere
     save_torch_doc(path, SEGNET_FORMAT, SEGNET_FORMAT_VERSION, {"classes": CLASS_NAMES, "arch": net.cfg.to_dict(),
-                                                               "state_dict": net.state_dict(), "extra": extra})
+                                                               "state_dict": weights, "extra": extra})
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:
