@@ -86,3 +86,15 @@ def test_an_unwritable_output_file_is_refused_before_the_work(tmp_path: Path, ca
         check_new_file(Path("/proc/brl-figures.json"))  # a directory even root cannot write into
     check_new_file(tmp_path / "figures.json")
     assert not list(tmp_path.iterdir())  # the probe leaves nothing behind
+
+
+def test_help_names_option_values_not_python_types() -> None:
+    from brlcli.cli import brl_command
+
+    group = brl_command()
+    for name in ("bench", "train", "eval-seg", "train-seg"):
+        with group.make_context("brl", [name, "--help"], resilient_parsing=True) as ctx:
+            text = group.commands[name].get_help(ctx)
+        assert "<str>" not in text and "list[str]" not in text, name
+    bench_help = group.commands["bench"].get_help(group.make_context("brl", ["bench"], resilient_parsing=True))
+    assert "--model MODEL" in bench_help

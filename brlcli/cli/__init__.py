@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> None:
     if not args:
         args = ["--help"]  # brl alone: the help, exit 0
     try:
-        code = typer.main.get_command(app).main(args, prog_name="brl", standalone_mode=False)
+        code = brl_command().main(args, prog_name="brl", standalone_mode=False)
     except BrlInputError as exc:
         _fail(str(exc), 2)
     except typer.TyperException as exc:  # click's usage errors: bad values, unknown options, missing options
@@ -78,6 +78,18 @@ def main(argv: list[str] | None = None) -> None:
         typer.echo("brl: interrupted", err=True)
         sys.exit(130)
     sys.exit(code if isinstance(code, int) else 0)
+
+
+def brl_command() -> Any:  # -> click.Group
+    """The click command of the app, every option's value named after the option in the help (`--model MODEL`, as
+    argparse does) instead of Typer's Python type names (`<list[str]>`)."""
+    group = typer.main.get_command(app)
+    for command in group.commands.values():  # type: ignore[attr-defined]
+        for param in command.params:  # Typer's own click: options are told by their param_type_name
+            if getattr(param, "param_type_name", "") == "option" and not getattr(param, "is_flag", False) \
+                    and not getattr(param, "count", False) and param.metavar is None and param.name:
+                param.metavar = param.name.rstrip("_").upper()
+    return group
 
 
 def _fail(message: str, code: int) -> None:
