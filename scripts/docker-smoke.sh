@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# Container smoke test: build the image, then run brl through `docker run` as a non-root uid with a read-only root
-# filesystem: preview, a 300-step train, a 10 % paper-suite bench, and one bad input (one line, exit 2).
-# Needs a Docker engine. Not part of the default test suite.
+# Container smoke test: build the image, then run brl through `docker run`: `--version` (the version brl reports
+# outside the container), bytecode for every module `import brlcli.cli` loads (as a non-root uid with a read-only
+# root filesystem and no tmpfs), preview into a fresh named volume as the image's user and as another uid, then as a
+# non-root uid with a read-only root filesystem and a bind mount: preview, a 300-step train, a 10 % paper-suite
+# bench, and one bad input (one line, exit 2). Needs a Docker engine. Not part of the default test suite.
 #
 #   scripts/docker-smoke.sh [IMAGE_TAG [DOCKER_BUILD_ARGS...]]
 #   e.g. scripts/docker-smoke.sh brl:smoke --build-arg TORCH_INDEX= --build-arg EXTRA_CA_CERTS="$(cat ca.pem)"
@@ -13,7 +15,8 @@ tag=${1:-brl:smoke}
 shift $(( $# > 0 ? 1 : 0 ))
 out=$(mktemp -d "${TMPDIR:-/tmp}/brl-smoke.XXXXXX")
 chmod 777 "$out"  # the container writes as another uid than the caller
-trap '[ "${KEEP_OUT:-0}" = 1 ] || rm -rf "$out"' EXIT
+volume=brl-smoke-$$
+trap '[ "${KEEP_OUT:-0}" = 1 ] || rm -rf "$out"; docker volume rm -f "$volume" >/dev/null 2>&1 || true' EXIT
 fail() { echo "smoke: FAIL: $*" >&2; exit 1; }
 
 t0=$(date +%s)
@@ -25,10 +28,37 @@ run() {  # non-root uid, read-only root filesystem, a tmpfs for /tmp, the output
         -v "$out:/work/out" "$tag" "$@"
 }
 
+# the version brl reports outside the container (that of pyproject.toml where brl is not installed here)
+want=$(python3 -c 'import brlcli; print(brlcli.__version__)' 2>/dev/null || true)
+if [ -z "$want" ] || [ "$want" = 0.0.0+unknown ]; then
+    want=$(python3 -c 'import tomllib; print(tomllib.load(open("pyproject.toml", "rb"))["project"]["version"])')
+fi
+got=$(docker run --rm "$tag" --version)
+[ "$got" = "brl $want" ] || fail "--version printed '$got', not 'brl $want'"
+echo "smoke: --version ok ($got)"
+
+# bytecode for all that `import brlcli.cli` loads, usable by any uid: nothing compiled from source at start-up
+verbose=$(docker run --rm --user 4321:4321 --read-only --entrypoint python3 "$tag" -v -c 'import brlcli.cli' 2>&1) \
+    || fail "import brlcli.cli failed: $(printf '%s\n' "$verbose" | tail -n 3)"
+from_source=$(printf '%s\n' "$verbose" | grep -c '^# code object from .*\.py$' || true)
+[ "$from_source" = 0 ] || fail "import brlcli.cli compiled $from_source modules from source (no bytecode in the image)"
+echo "smoke: bytecode ok"
+
+# a fresh named volume: Docker copies /work/out's ownership and mode from the image into it
+docker volume rm -f "$volume" >/dev/null 2>&1 || true
+docker run --rm -v "$volume:/work/out" "$tag" preview town02 --weathers 1 --out /work/out/p >/dev/null \
+    || fail "preview into a named volume as the image's user failed"
+docker run --rm --user 4321:4321 --read-only --tmpfs /tmp -v "$volume:/work/out" "$tag" \
+    preview town02 --weathers 1 --out /work/out/q >/dev/null || fail "preview into a named volume as uid 4321 failed"
+docker run --rm -v "$volume:/work/out" --entrypoint sh "$tag" -c 'test -s /work/out/p/town02_topdown.png &&
+    test -s /work/out/q/town02_topdown.png' || fail "preview wrote no picture into the named volume"
+echo "smoke: named volume ok"
+
 run preview town02 --weathers 1 --out /work/out/preview >/dev/null
 [ -s "$out/preview/town02_topdown.png" ] || fail "preview wrote no picture"
 grep -q '"git_commit": "'"$(git rev-parse HEAD 2>/dev/null || echo unknown)"'"' "$out/preview/run.json" \
     || fail "run.json does not record the build's git commit"
+grep -q '"brl_version": "'"$want"'"' "$out/preview/run.json" || fail "run.json does not record brl $want"
 echo "smoke: preview ok"
 
 run train --steps 300 --no-evaluate --out /work/out/train >/dev/null
