@@ -168,7 +168,7 @@ def test_paper_checks_and_average_best_rows(tmp_path: Path) -> None:
     best = next(r for r in table if r["Row"].startswith("best model: "))
     assert best["Row"] == "best model: m/good"
     published = [r for r in table if r["Source"] == "published"]
-    assert len(published) == 10  # every row of tab:ZGHSmall, RL and IL included
+    assert len(published) == 10  # every row of the paper's Table II (tab:ZGHSmall), RL and IL included
     assert {"RL", "IL"} <= {r["Setting"] for r in published}
 
 
@@ -304,6 +304,89 @@ def test_missing_setting_is_reported(tmp_path: Path) -> None:
     assert "Setting TGDE is missing" in md and "Setting TEDE is missing" in md
     assert "Setting TGDG is missing" not in md and "Setting TEDG is missing" not in md
     assert "Missing settings (no results): TGDE, TEDE." in md
+
+
+def _variant(episodes: list[dict], variant: str) -> list[dict]:
+    """The episodes as another method variant's: setting 'TGDG (NAME)', policies and frames files of their own."""
+    return [{**e, "policy": f"{variant}/{e['policy']}", "setting": f"{e['setting']} ({variant})",
+             "frames_file": e["frames_file"].replace("frames/", f"frames/{variant}_")} for e in episodes]
+
+
+def test_a_setting_present_only_under_a_variant_label_is_not_missing(tmp_path: Path) -> None:
+    """Issue 36: 'Setting TGDG is missing' stood beside 'TGDG (action-averaging-restart)' rows."""
+    eps = _variant(model_set("TGDG") + model_set("TEDG"), "action-averaging-restart")
+    out = tmp_path / "rep"
+    build_report([write_results(tmp_path / "r", eps)], out=out, formats="md,csv")
+    md = (out / "report.md").read_text()
+    for setting in ("TGDG", "TEDG"):
+        assert f"Setting {setting} is missing" not in md
+    assert "Setting TGDE is missing" in md and "Setting TEDE is missing" in md
+    assert "Missing settings (no results): TGDE, TEDE." in md
+    table = read_csv(out / "tables" / "paper_test_table.csv")
+    ours = [(r["Setting"], r["Row"].split(":")[0]) for r in table if r["Source"] == "ours"]
+    assert ("TGDG (action-averaging-restart)", "average") in ours and ("TGDG", "missing") not in ours
+    assert [r for r in ours if r[0] == "TGDE"] == [("TGDE", "missing")]
+    posteriors = read_csv(out / "tables" / "paper_posteriors.csv")
+    assert {r["Setting"] for r in posteriors if r["Scope"].startswith("missing")} == {"TGDE", "TEDE"}
+
+
+def test_beta_titles_and_captions_name_baselines_only_when_there_are_some(tmp_path: Path) -> None:
+    from brlcli.report.plots import beta_label, beta_panel_titles
+    from brlcli.report.tables import Posterior
+
+    sets = [Posterior("TGDG", "best", "best model: gt/seed_2", "success", 66, 0, 1),
+            Posterior("TGDG", "pooled", "pooled over 9 models", "success", 408, 186, 9)]
+    base = Posterior("autopilot", "policy", "autopilot", "success", 66, 0, 1)
+    assert beta_panel_titles(sets, "success")[0] == "Best model per setting"
+    assert beta_panel_titles([*sets, base], "success")[0] == "Best model per setting (and baselines)"
+    assert beta_panel_titles([*sets, base], "collision-free")[0] == "Best model per setting"  # another rate's
+    assert beta_label(sets[0]) == "TGDG gt/seed_2: 66/66, mean 0.99"
+    assert beta_label(sets[1]) == "TGDG, 9 models: 408/594, mean 0.69"
+    long = Posterior("TGDE (action-averaging-committee)", "best", "best model: brl_gt_committee/seed_6", "success",
+                     66, 0, 1)
+    assert all(len(line) <= 62 for line in beta_label(long).splitlines())  # wrapped to fit below its panel
+
+    plain = tmp_path / "plain"
+    build_report([write_results(tmp_path / "r", model_set("TGDG"))], out=plain, formats="md")
+    md = (plain / "report.md").read_text()
+    assert "pooled over the setting's model set (right)." in md and "baselines dashed" not in md
+    with_base = tmp_path / "with_base"
+    eps = model_set("TGDG") + [paper_episode("autopilot", "autopilot", n) for n in range(3)]
+    build_report([write_results(tmp_path / "r2", eps)], out=with_base, formats="md")
+    assert "(right); baselines dashed." in (with_base / "report.md").read_text()
+
+
+def test_a_subset_of_the_suite_says_its_distances_are_not_the_published_ones(tmp_path: Path) -> None:
+    """Issue 36: the published ~11,000 m stood beside a 10 % subset's metres without a word."""
+    out = tmp_path / "subset"
+    build_report([write_results(tmp_path / "r", model_set("TGDG"))], out=out, formats="md,csv")
+    md = (out / "report.md").read_text()
+    assert "A subset: 6 of the suite's 66 episodes per model" in md  # the section's text
+    assert ("Dist is not comparable with the published rows in absolute terms: those are for the paper's full test "
+            "suite, ours for 6 of the suite's 66 episodes per model (a subset of it)") in md
+    assert "### Lane-keeping test table (the paper's Table II)" in md
+    assert "tab:" not in md  # the paper's LaTeX labels are no reader's table names
+
+    full = tmp_path / "full"  # 66 episodes per model: the paper suite's size, no note
+    build_report([write_results(tmp_path / "f", model_set("TGDG", models=2, episodes=66))], out=full,
+                 formats="md")
+    md_full = (full / "report.md").read_text()
+    assert "not comparable with the published rows" not in md_full and "A subset:" not in md_full
+
+    def corl(n: int) -> dict:
+        return {"suite": "corl2017", "condition": "new_town", "task": "straight", "town": "town02", "weather": 1,
+                "index": n, "id": f"corl2017/town02/new_town/straight/w01/{n:02d}", "policy": "seed_3",
+                "setting": "TGDG", "seed": n, "success": True, "km": 0.3, "steps": 100, "collided": False,
+                "either_steps": 0, "infractions": {"offroad": 1, "otherlane": 0, "collision_other": 0,
+                                                   "collision_vehicles": 0, "collision_pedestrians": 0}}
+
+    (tmp_path / "c").mkdir()
+    corl_md = (_report_of(tmp_path / "c", "corl2017", [corl(n) for n in range(5)]) / "report.md").read_text()
+    assert "A subset: 5 of the suite's 1200 episodes per agent." in corl_md
+    assert ("The published figures are for the full CoRL2017 suite (25 routes x every weather of a condition); ours "
+            "are for 5 of the suite's 1200 episodes per agent (a subset of it), so the km driven are not comparable "
+            "in absolute terms. The km between infractions (per-km rates) are") in corl_md
+    assert "Gharaee et al. 2020, Table III" in corl_md and "tab:" not in corl_md
 
 
 def test_baselines_are_extra_rows(tmp_path: Path) -> None:

@@ -18,7 +18,7 @@ from brlcli.errors import BrlInputError
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, git_commit, provenance
 from brlcli.report import tables as tb
 from brlcli.report.load import Results, TrainingRun, load_frames, load_results, load_runs
-from brlcli.report.published import CORL_CONDITIONS
+from brlcli.report.published import CORL_CONDITIONS, PAPER_TOWN02_NAME
 
 FORMATS: tuple[str, ...] = ("md", "tex", "csv", "html")
 """Output formats: report.md (+ PNGs), tables/*.tex, tables/*.csv, report.html (self-contained)."""
@@ -38,6 +38,17 @@ def parse_formats(formats: str | Sequence[str] | None) -> tuple[str, ...]:
     if not chosen:
         raise BrlInputError(f"give at least one report format ({', '.join(FORMATS)})")
     return tuple(f for f in FORMATS if f in chosen)
+
+
+def suite_size(suite: str) -> int | None:
+    """Episodes of the whole suite as this brl defines it (to tell a subset, `brl bench --episodes`, from the
+    suite); None for a suite it cannot build."""
+    from brlcli.bench.suites import build_suite
+
+    try:
+        return len(build_suite(suite))
+    except Exception:  # an unknown or unbuildable suite: its size is simply not known
+        return None
 
 
 def _lane_shares(data: tb.PaperData, notes: list[str]) -> list[Any]:
@@ -83,12 +94,16 @@ def _paper_section(episodes: list[dict[str, Any]], images: dict[str, Callable[[]
         images.update({f"{suite}_{name}": make for name, make in own_images.items()})
         summary.extend({**row, "suite": suite} for row in own_summary)
         return section
-    data = tb.paper_data(episodes)
+    data = tb.paper_data(episodes, suite_size(str(episodes[0]["suite"])) if episodes else None)
     posts = tb.posteriors(data)
     conditions = sorted({(str(ep["condition"]), str(ep["town"])) for ep in episodes})
     text = (f"{len(episodes)} episodes of {sum(len(m) for m in data.models.values())} policies in the settings "
             f"{', '.join(data.settings)}; pooled over the conditions "
             f"{', '.join(f'{c} ({t})' for c, t in conditions)}.")
+    subset = tb.paper_subset_phrase(data)
+    if subset:
+        text += (f" A subset: {subset}; the published distances are for the full suite (metres driven are not "
+                 "comparable, shares are).")
     if data.missing:
         text += f" Missing settings (no results): {', '.join(data.missing)}."
     section = tb.Section("The paper's test suite (lane keeping)", text,
@@ -99,10 +114,11 @@ def _paper_section(episodes: list[dict[str, Any]], images: dict[str, Callable[[]
 
         for rate, file in (("success", "beta_success.png"), ("collision-free", "beta_collision_free.png")):
             images[file] = lambda rate=rate: pl.beta_figure(posts, rate, order)
+            baselines = "; baselines dashed" if pl.has_baselines(posts, rate) else ""
             section.figures.append(tb.Figure(file, f"Beta posterior of the {rate} rate",
                                              f"Posterior PDFs (Jeffreys prior) of the {rate} rate per setting: the "
                                              "best model by Score (left) and pooled over the setting's model set "
-                                             "(right); baselines dashed."))
+                                             f"(right){baselines}."))
         shares = _lane_shares(data, notes)
         images["lane_histogram.png"] = lambda: pl.lane_histogram_figure(shares, order)
         section.figures.append(tb.Figure("lane_histogram.png", "Per-step lane position",
@@ -134,8 +150,14 @@ def _corl_section(episodes: list[dict[str, Any]], summary: list[dict[str, Any]])
     conds = [title for key, title in CORL_CONDITIONS if key in present] + sorted(present - set(known))
     text = (f"{len(episodes)} episodes of {len(agents)} agent{'s' if len(agents) != 1 else ''} in the conditions "
             f"{', '.join(conds)}. Tables follow "
-            "CARLA's Table 1 (% success) and the paper's Town02 table (km between infractions).")
-    section = tb.Section("CoRL2017 benchmark", text, [tb.corl_success_table(episodes), tb.corl_km_table(episodes)])
+            f"CARLA's Table 1 (% success) and the paper's {PAPER_TOWN02_NAME} (Town02, km between infractions).")
+    size = suite_size("corl2017")
+    subset = tb.subset_phrase([sum(1 for ep in episodes if (ep["setting"], ep["policy"]) == a) for a in agents], size,
+                              "agent")
+    if subset:
+        text += f" A subset: {subset}."
+    section = tb.Section("CoRL2017 benchmark", text, [tb.corl_success_table(episodes),
+                                                      tb.corl_km_table(episodes, size)])
     _agent_summaries("corl2017", episodes, agents, summary)
     return section
 

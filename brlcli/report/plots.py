@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import io
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -18,6 +19,7 @@ from matplotlib.figure import Figure
 from brlcli.bench.metrics import FOOTPRINT_THRESHOLD, beta_posterior
 from brlcli.report.load import TrainingRun
 from brlcli.report.tables import Posterior, RunMarks
+from brlcli.settings import base_setting
 
 DPI = 100
 """Dots per inch of every PNG."""
@@ -27,16 +29,51 @@ SMOOTHING_STEPS = 200
 """Window of the moving average of the learning curves, learning steps."""
 
 SETTING_COLORS = {"TGDG": "tab:blue", "TGDE": "tab:orange", "TEDE": "tab:green", "TEDG": "tab:red"}
-OTHER_COLORS = ("tab:purple", "tab:brown", "tab:pink", "tab:gray", "tab:olive", "tab:cyan")
+OTHER_COLORS = ("tab:purple", "tab:brown", "tab:pink", "tab:gray", "tab:olive", "tab:cyan", "goldenrod", "navy",
+                "teal", "darkred")
 INPUT_COLORS = {"gt": ("tab:blue", "navy", "tab:orange"), "estimated": ("tab:green", "darkgreen", "tab:red")}
 """Per training input: mean color, best-run color, worst-run color."""
+EXTRA_INPUT_COLORS = (("tab:purple", "indigo", "tab:brown"), ("tab:cyan", "teal", "tab:pink"),
+                      ("tab:olive", "darkolivegreen", "tab:gray"))
+"""Mean, best-run and worst-run colors of further training groups (a second method variant on the same input)."""
+
+
+def group_colors(groups: Sequence[str]) -> dict[str, tuple[str, str, str]]:
+    """Colors per training group ('gt', 'estimated (action-averaging-restart)', ...): each input's own colors for
+    its first group whatever the variant label, further groups of that input in turn from EXTRA_INPUT_COLORS."""
+    out: dict[str, tuple[str, str, str]] = {}
+    used: set[str] = set()
+    extra = 0
+    for group in sorted(groups, key=lambda g: (" " in g, g)):  # a paper group (no variant label) first
+        base = group.partition(" ")[0]
+        if base in INPUT_COLORS and base not in used:
+            out[group] = INPUT_COLORS[base]
+            used.add(base)
+        else:
+            out[group] = EXTRA_INPUT_COLORS[extra % len(EXTRA_INPUT_COLORS)]
+            extra += 1
+    return out
+
+
+def _own_color(setting: str, order: Sequence[str]) -> str | None:
+    """The paper setting's color of a label: its own, or its base setting's for a method variant ('TGDG (NAME)')
+    when the base setting itself is not shown and no other variant of it comes before."""
+    if setting in SETTING_COLORS:
+        return SETTING_COLORS[setting]
+    base = base_setting(setting)
+    if base in SETTING_COLORS and base not in order:
+        first = next((s for s in order if base_setting(s) == base), setting)
+        return SETTING_COLORS[base] if first == setting else None
+    return None
 
 
 def color_of(setting: str, order: Sequence[str]) -> str:
-    """A fixed color per paper setting; other settings in turn."""
-    if setting in SETTING_COLORS:
-        return SETTING_COLORS[setting]
-    others = [s for s in order if s not in SETTING_COLORS]
+    """A fixed color per paper setting (a method variant's label takes its setting's color when that setting is not
+    shown); other settings in turn."""
+    own = _own_color(setting, order)
+    if own is not None:
+        return own
+    others = [s for s in order if _own_color(s, order) is None]
     return OTHER_COLORS[others.index(setting) % len(OTHER_COLORS)] if setting in others else "black"
 
 
@@ -47,23 +84,55 @@ def _png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
+def has_baselines(posts: Sequence[Posterior], rate: str) -> bool:
+    """Whether the posteriors of `rate` hold a baseline's (one policy, not a model set)."""
+    return any(p.rate == rate and p.scope == "policy" for p in posts)
+
+
+def beta_panel_titles(posts: Sequence[Posterior], rate: str) -> tuple[str, str]:
+    """Titles of the left (best model) and right (pooled) panels; '(and baselines)' only where there are some."""
+    left = "Best model per setting" + (" (and baselines)" if has_baselines(posts, rate) else "")
+    return left, "Pooled over each setting's model set"
+
+
+def beta_label(p: Posterior) -> str:
+    """A posterior's legend entry: setting, which model(s), successes of episodes and the posterior mean (the panel's
+    title says best or pooled)."""
+    mean = (p.successes + 0.5) / (p.successes + p.failures + 1.0)
+    n = p.successes + p.failures
+    if p.scope == "best":
+        who = f" {p.label.removeprefix('best model: ')}"
+    elif p.scope == "pooled":
+        who = f", {p.models} model{'s' if p.models != 1 else ''}"
+    else:
+        who = "" if p.label == p.setting else f" ({p.label})"
+    label = f"{p.setting}{who}: {p.successes}/{n}, mean {mean:.2f}"
+    return "\n".join(textwrap.wrap(label, LEGEND_WRAP, subsequent_indent="    ", break_on_hyphens=False))
+
+
+LEGEND_WRAP = 62
+"""Characters per line of a Beta legend entry (at font size 8 a line this long fills most of a panel's width)."""
+LEGEND_ROW_IN = 0.16
+"""Height of one legend line at font size 8, inches (the Beta figure grows by it per line below the axes)."""
+
+
 def beta_figure(posts: Sequence[Posterior], rate: str, order: Sequence[str]) -> bytes:
-    """PDFs of one rate's posteriors: best model per setting (left), pooled over the model set (right)."""
-    fig = Figure(figsize=(WIDTH_IN, 4.6), dpi=DPI, layout="constrained")
+    """PDFs of one rate's posteriors: best model per setting (left), pooled over the model set (right); each panel's
+    legend below it (the figure grows with the entries, so nothing is cut at its edge)."""
+    panels = (("best", "policy"), ("pooled",))
+    shown_of = [[p for p in posts if p.rate == rate and p.scope in scopes] for scopes in panels]
+    lines = max(sum(beta_label(p).count("\n") + 1 for p in shown) for shown in shown_of)
+    fig = Figure(figsize=(WIDTH_IN, 4.4 + LEGEND_ROW_IN * lines), dpi=DPI, layout="constrained")
     axes = fig.subplots(1, 2, sharey=False)
     x = np.linspace(0.0005, 0.9995, 2000)
     inner = (x > 0.01) & (x < 0.99)
-    panels = (("best", "policy"), ("pooled",))
-    titles = ("Best model per setting (and baselines)", "Pooled over each setting's model set")
-    for ax, scopes, title in zip(axes, panels, titles, strict=True):
+    titles = beta_panel_titles(posts, rate)
+    for ax, shown, title in zip(axes, shown_of, titles, strict=True):
         top = 0.0
-        shown = [p for p in posts if p.rate == rate and p.scope in scopes]
         for p in shown:
             pdf = beta_posterior(p.successes, p.failures).pdf(x)
-            mean = (p.successes + 0.5) / (p.successes + p.failures + 1.0)
-            label = f"{p.setting}: {p.label} ({p.successes}/{p.successes + p.failures}, mean {mean:.2f})"
             ax.plot(x, pdf, color=color_of(p.setting, order), lw=2, ls="-" if p.scope != "policy" else "--",
-                    label=label)
+                    label=beta_label(p))
             top = max(top, float(np.max(pdf[inner])))
         ax.set_xlim(0.0, 1.0)
         ax.set_ylim(0.0, top * 1.1 if top > 0 else 1.0)
@@ -75,8 +144,9 @@ def beta_figure(posts: Sequence[Posterior], rate: str, order: Sequence[str]) -> 
         ax.set_ylabel("posterior probability density")
         ax.set_title(title, fontsize=11)
         ax.grid(alpha=0.3)
-        if shown:
-            ax.legend(fontsize=8, loc="upper left")
+        if shown:  # below the axes, inside the figure: constrained layout makes room for it
+            ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncols=1, frameon=False,
+                      handlelength=2.2)
         else:
             ax.text(0.5, 0.5, "no results", ha="center", va="center", transform=ax.transAxes)
     fig.suptitle(f"Beta posterior of the {rate} rate (Jeffreys prior Beta(0.5, 0.5))", fontsize=13)
@@ -144,9 +214,10 @@ def convergence_figure(runs: Sequence[TrainingRun], marks: RunMarks) -> bytes:
     ± 1 std band, the best and the worst run (final greedy evaluation) as thin lines."""
     fig = Figure(figsize=(WIDTH_IN, 7.5), dpi=DPI, layout="constrained")
     ax_r, ax_td = fig.subplots(2, 1, sharex=True)
+    colors = group_colors(sorted({r.group for r in runs}))
     for train_input in sorted({r.group for r in runs}):
         group = [r for r in runs if r.group == train_input]
-        color, best_color, worst_color = INPUT_COLORS.get(train_input, ("tab:purple", "indigo", "tab:brown"))
+        color, best_color, worst_color = colors[train_input]
         base, _, variant = train_input.partition(" ")
         tag = {"gt": "TG", "estimated": "TE"}.get(base, base) + (f" {variant}" if variant else "")
         length = min(r.step.size for r in group)
@@ -155,9 +226,9 @@ def convergence_figure(runs: Sequence[TrainingRun], marks: RunMarks) -> bytes:
             curves = np.stack([_moving_average(getattr(r, attr)[:length], window) for r in group])
             steps = group[0].step[window - 1:length]
             mean, std = curves.mean(axis=0), curves.std(axis=0)
-            ax.plot(steps, mean, color=color, lw=2, label=f"{tag} models: mean of {len(group)} runs")
+            ax.plot(steps, mean, color=color, lw=2, label=f"{tag}: mean of {len(group)} runs")
             ax.fill_between(steps, mean - std, mean + std, color=color, alpha=0.2, lw=0,
-                            label=f"{tag} models: ± 1 std over runs")
+                            label=f"{tag}: ± 1 std over runs")
             for mark, style, line_color in (("best", "--", best_color), ("worst", ":", worst_color)):
                 name = getattr(marks, mark).get(train_input)
                 run = next((r for r in group if r.name == name), None)
@@ -175,6 +246,6 @@ def convergence_figure(runs: Sequence[TrainingRun], marks: RunMarks) -> bytes:
         ax.grid(alpha=0.3)
     handles, labels = ax_r.get_legend_handles_labels()
     if handles:
-        fig.legend(handles, labels, loc="outside lower center", ncols=2, fontsize=9)
+        fig.legend(handles, labels, loc="outside lower center", ncols=2, fontsize=8)
     fig.suptitle("Convergence of the training runs", fontsize=13)
     return _png(fig)

@@ -1,16 +1,21 @@
 """Published figures printed beside ours: the paper's test table, CARLA's Table 1 and the paper's Town02 table.
 
-Sources: the seed paper (Gharaee et al., ICPR 2020) tables `tab:ZGHSmall` and `tab:carlacompTown02`, and CARLA
-(Dosovitskiy et al., CoRL 2017) Table 1 as transcribed in docs/benchmarks.md. Shares are percentages as printed.
+Sources: the seed paper (Gharaee et al., ICPR 2020) Tables II and III (labels `tab:ZGHSmall` and
+`tab:carlacompTown02` in its LaTeX source; Table I is its parameter settings, `tab:settings`), and CARLA (Dosovitskiy
+et al., CoRL 2017) Table 1 as transcribed in docs/benchmarks.md. Shares are percentages as printed.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-PAPER_TABLE_SOURCE = "Gharaee et al. 2020, tab:ZGHSmall"
+PAPER_TABLE_NAME = "Table II"
+"""The paper's lane-keeping test table as its PDF numbers it (tab:ZGHSmall in the LaTeX source)."""
+PAPER_TOWN02_NAME = "Table III"
+"""The paper's Town02 km-between-infractions table as its PDF numbers it (tab:carlacompTown02)."""
+PAPER_TABLE_SOURCE = f"Gharaee et al. 2020, {PAPER_TABLE_NAME}"
 CARLA_TABLE1_SOURCE = "Dosovitskiy et al. 2017, Table 1"
-PAPER_TOWN02_SOURCE = "Gharaee et al. 2020, tab:carlacompTown02"
+PAPER_TOWN02_SOURCE = f"Gharaee et al. 2020, {PAPER_TOWN02_NAME}"
 
 
 @dataclass(frozen=True)
@@ -42,7 +47,7 @@ PAPER_TABLE: tuple[PublishedPaperRow, ...] = (
     PublishedPaperRow("RL", "CARLA RL", 42.4, 21.0, 52.4, 41.7, 50.0, 0.46, None, 8787, None),
     PublishedPaperRow("IL", "CARLA IL", 8.3, 0.7, 8.4, 86.9, 90.5, 0.90, None, 11293, None),
 )
-"""The paper's Table tab:ZGHSmall, every row (the four settings' average and best model, then RL and IL)."""
+"""The paper's Table II (tab:ZGHSmall), every row (the four settings' average and best model, then RL and IL)."""
 
 PAPER_SETTINGS: tuple[str, ...] = ("TGDG", "TGDE", "TEDE", "TEDG")
 """The paper's train/deploy settings in the order of its table."""
@@ -91,7 +96,8 @@ PAPER_TOWN02_KM: dict[str, dict[str, tuple[float, ...]]] = {
     "collision_pedestrians": {"new_town": (1.40, 1.88, 2.55, 1.40, 1.20, 1.35, 0.53),
                               "new_town_weather": (1.46, 1.41, 2.99, 1.39, 0.69, 1.13, 1.31)},
 }
-"""The paper's tab:carlacompTown02: average km driven between infractions in Town02 (MP, IL, RL from CARLA)."""
+"""The paper's Table III (tab:carlacompTown02): average km driven between infractions in Town02 (MP, IL, RL from
+CARLA)."""
 
 INFRACTION_TITLES: dict[str, str] = {
     "offroad": "Sidewalk (off-road)", "otherlane": "Opposite lane", "collision_other": "Collision-static",

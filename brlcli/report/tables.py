@@ -142,7 +142,9 @@ class PaperData:
     episodes: dict[tuple[str, str], list[dict[str, Any]]]
     """(setting, policy) -> episodes."""
     missing: list[str]
-    """Paper settings without any results."""
+    """Paper settings without any results, under any method variant's label ('TGDG (NAME)' counts as TGDG)."""
+    suite_size: int | None = None
+    """Episodes of the whole suite the results were drawn from (None: not known)."""
 
     @property
     def settings(self) -> list[str]:
@@ -155,16 +157,33 @@ class PaperData:
         return base_setting(setting) in pub.PAPER_SETTINGS
 
 
-def paper_data(episodes: Sequence[dict[str, Any]]) -> PaperData:
-    """Group the paper-suite episodes by setting and model."""
+def paper_data(episodes: Sequence[dict[str, Any]], suite_size: int | None = None) -> PaperData:
+    """Group the paper-suite episodes by setting and model; `suite_size`: episodes of the whole suite (to say when
+    the results are a subset of it)."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
     for ep in episodes:
         groups[(str(ep["setting"]), str(ep["policy"]))].append(ep)
     models: dict[str, list[ModelStats]] = {}
     for setting in setting_order([s for s, _ in groups]):
         models[setting] = [model_stats(setting, p, groups[(s, p)]) for s, p in sorted(groups) if s == setting]
-    missing = [s for s in pub.PAPER_SETTINGS if s not in models]
-    return PaperData(models=models, episodes=dict(groups), missing=missing)
+    present = {base_setting(s) for s in models}
+    missing = [s for s in pub.PAPER_SETTINGS if s not in present]
+    return PaperData(models=models, episodes=dict(groups), missing=missing, suite_size=suite_size)
+
+
+def subset_phrase(counts: Sequence[int], suite_size: int | None, per: str) -> str | None:
+    """'7 of the suite's 66 episodes per model' (or 'from 7 to 20 of ...') when any count is below the suite's size;
+    None when every one ran the whole suite, or the size is not known."""
+    if suite_size is None or not counts or min(counts) >= suite_size:
+        return None
+    lo, hi = min(counts), max(counts)
+    ran = str(lo) if lo == hi else f"from {lo} to {hi}"
+    return f"{ran} of the suite's {suite_size} episodes per {per}"
+
+
+def paper_subset_phrase(data: PaperData) -> str | None:
+    """subset_phrase of the paper-suite models (and baselines)."""
+    return subset_phrase([m.episodes for ms in data.models.values() for m in ms], data.suite_size, "model")
 
 
 PAPER_COLUMNS = ["Setting", "Row", "Source", "Models", "Episodes", "Offroad [%]", "Otherlane [%]", "Either [%]",
@@ -205,7 +224,7 @@ def _our_rows(t: Table, setting: str, models: list[ModelStats] | None) -> None:
 def paper_table(data: PaperData) -> Table:
     """The paper's test table: per setting our average (± std over models) and best model, then the published
     rows; baselines (other settings) one row per policy; the published RL and IL rows last."""
-    t = Table("paper_test_table", "Lane-keeping test table (the paper's tab:ZGHSmall)", list(PAPER_COLUMNS),
+    t = Table("paper_test_table", f"Lane-keeping test table (the paper's {pub.PAPER_TABLE_NAME})", list(PAPER_COLUMNS),
               label_columns=3)
     published_rows = {(r.setting, r.row): r for r in pub.PAPER_TABLE}
     for paper_setting in pub.PAPER_SETTINGS:
@@ -236,6 +255,11 @@ def paper_table(data: PaperData) -> Table:
         f"Rows marked published come from {pub.PAPER_TABLE_SOURCE} (CARLA 0.8, nine models per setting); RL and IL are "
         "CARLA's baselines there. Our simulator is not CARLA: compare trends, not absolute values.",
     ]
+    subset = paper_subset_phrase(data)
+    if subset:
+        t.notes.insert(1, f"Dist is not comparable with the published rows in absolute terms: those are for the "
+                          f"paper's full test suite, ours for {subset} (a subset of it). The shares (per step or "
+                          "per episode) and the Score are comparable; metres driven scale with the episodes run.")
     for setting in data.missing:
         t.notes.append(f"Setting {setting} is missing: the inputs hold no {setting} results.")
     for setting, models in data.models.items():
@@ -425,9 +449,10 @@ def corl_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
     return t
 
 
-def corl_km_table(episodes: Sequence[dict[str, Any]]) -> Table:
+def corl_km_table(episodes: Sequence[dict[str, Any]], suite_size: int | None = None) -> Table:
     """Average km between infractions per type x condition (pooled over tasks and weathers) per agent, with the
-    paper's Town02 table (MP, IL, RL and its four settings) beside ours."""
+    paper's Town02 table (its Table III: MP, IL, RL and its four settings) beside ours; `suite_size`: episodes of
+    the whole CoRL2017 suite (to say when ours are a subset of it)."""
     cond_keys = [c for c, _ in pub.CORL_CONDITIONS]
     t = Table("corl_km_between_infractions", "CoRL2017: average km driven between infractions",
               ["Infraction", "Agent", "Source", *(title for _, title in pub.CORL_CONDITIONS)], label_columns=3)
@@ -465,6 +490,13 @@ def corl_km_table(episodes: Sequence[dict[str, Any]]) -> Table:
         f"Rows marked published come from {pub.PAPER_TOWN02_SOURCE} (Town02 only: New town and New town & "
         "weather; MP, IL and RL from CARLA).",
     ]
+    subset = subset_phrase([sum(len(groups.get((s, p, c), [])) for c in cond_keys) for s, p in agents], suite_size,
+                           "agent")
+    if subset:
+        t.notes.append(f"The published figures are for the full CoRL2017 suite (25 routes x every weather of a "
+                       f"condition); ours are for {subset} (a subset of it), so the km driven are not comparable in "
+                       "absolute terms. The km between infractions (per-km rates) are, with the wider uncertainty of "
+                       "fewer km ('> X' bounds are weaker).")
     return t
 
 
