@@ -17,7 +17,7 @@ from typing import Annotated, Any
 import typer
 
 # isort: off
-from brlcli.cli import data, seg, train, bench  # noqa: F401  (registers the commands, in the order `brl --help` lists)
+from brlcli.cli import data, seg, train, bench, study  # noqa: F401  (registers the commands, in the order `brl --help` lists)
 # isort: on
 from brlcli.cli.common import app
 from brlcli.cli.train import train_summary_line
@@ -38,7 +38,7 @@ def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version.")]
     = False,
 ) -> None:
-    """brl: collect, train-seg, train, sweep, bench, report; baselines train-il, train-rl; preview the towns."""
+    """brl: collect, train-seg, train, sweep, bench, report, reproduce; baselines train-il, train-rl; preview."""
 
 
 WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})

@@ -253,12 +253,19 @@ class TrainingRun:
         return self.input if self.variant == "paper" else f"{self.input} ({self.variant})"
 
 
+def _log_dir(run: Path) -> Path:
+    """Where a run's learning curve is: the run itself, or for a committee's seed directory its member 0 (the seed's
+    own run; the committee's config.json and summary.json stay the seed directory's)."""
+    return run / "member_0" if not (run / "log.csv").is_file() and (run / "member_0" / "log.csv").is_file() else run
+
+
 def _run_paths(item: Path) -> list[Path]:
     if not item.exists():
         raise BrlInputError(f"training run directory {item} does not exist")
-    if (item / "log.csv").is_file():
+    if (_log_dir(item) / "log.csv").is_file():
         return [item]
-    found = sorted(p for p in item.iterdir() if p.is_dir() and (p / "log.csv").is_file()) if item.is_dir() else []
+    found = sorted(p for p in item.iterdir() if p.is_dir() and (_log_dir(p) / "log.csv").is_file()) \
+        if item.is_dir() else []
     if not found:
         raise BrlInputError(f"{item} holds no training runs (no log.csv in it or its subdirectories)")
     return found
@@ -305,9 +312,9 @@ def load_runs(run_dirs: Sequence[str | Path]) -> list[TrainingRun]:
     runs: dict[str, TrainingRun] = {}
     for item in run_dirs:
         for path in _run_paths(Path(item)):
-            step, reward, td = _read_log(path)
+            step, reward, td = _read_log(_log_dir(path))
             if step.size == 0:
-                raise BrlInputError(f"{path / 'log.csv'} holds no learning steps yet")
+                raise BrlInputError(f"{_log_dir(path) / 'log.csv'} holds no learning steps yet")
             config = _read_json(path / "config.json") or {}
             train_input = str((config.get("config") or {}).get("input", "gt"))
             variant = str((config.get("config") or {}).get("variant", "paper"))
