@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import json
 import shlex
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
@@ -331,10 +333,43 @@ def check_needs(plan: list[Step], chosen: list[Step], root: Path) -> None:
         will_run.add(step.name)
 
 
+class StepFailed(Exception):
+    """A step's command ended with a non-zero exit code (parallel runs: its log names why)."""
+
+    def __init__(self, step: str, code: int, log: Path | None = None) -> None:
+        super().__init__(f"step {step} failed (exit {code})" + (f"; its output: {log}" if log else ""))
+        self.code = code
+
+
+def _step_argv(step: Step, root: Path) -> list[str]:
+    """The step's command line as it runs now: paths under root, the best model chosen, --resume if it started."""
+    argv = _with_root(step, root)
+    argv = [str(best_model(Path(a[len(BEST):-1]))) if a.startswith(BEST) else a for a in argv]
+    if step.resumable and (root / step.out).exists():
+        argv.append("--resume")
+    return argv
+
+
+def _finish(root: Path, step: Step, argv: list[str], wall_s: float) -> None:
+    from brlcli.provenance import atomic_write_json, provenance
+
+    atomic_write_json(root / STEPS_DIR / f"{step.name}.json",
+                      provenance({"argv": argv, "wall_s": round(wall_s, 1)}, kind="step"))
+
+
+def spawn_brl(argv: list[str], log: Path) -> subprocess.Popen:
+    """A step of a parallel run: `python -m brlcli.cli ARGV` in its own process, its output to `log`."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "ab") as fh:
+        return subprocess.Popen([sys.executable, "-m", "brlcli.cli", *argv], stdout=fh, stderr=subprocess.STDOUT)
+
+
 def run_plan(study: str, plan: list[Step], chosen: list[Step], root: Path, opts: StudyOptions,
-             run_argv: Callable[[list[str]], None], note: Callable[[str], None] = print) -> dict[str, Any]:
-    """Run the chosen steps of a plan in order (skipping finished ones), each through `run_argv` (brl's command
-    line, in this process); steps/NAME.json after each; returns what ran and what was skipped."""
+             run_argv: Callable[[list[str]], None], note: Callable[[str], None] = print, jobs: int = 1,
+             spawn: Callable[[list[str], Path], subprocess.Popen] = spawn_brl) -> dict[str, Any]:
+    """Run the chosen steps of a plan, skipping finished ones: in order, each through `run_argv` (brl's command
+    line, in this process), or with `jobs` > 1 up to `jobs` independent steps at a time, each a process of its own
+    (`spawn`; its output in steps/NAME.log); steps/NAME.json after each; returns what ran and what was skipped."""
     from brlcli.provenance import atomic_write_json, provenance
 
     check_needs(plan, chosen, root)
@@ -342,19 +377,56 @@ def run_plan(study: str, plan: list[Step], chosen: list[Step], root: Path, opts:
     if not (root / STUDY_FILE).exists():
         atomic_write_json(root / STUDY_FILE, provenance({"plan": opts.record(study),
                                                          "steps": [s.name for s in plan]}, kind="reproduce"))
-    ran, skipped = [], []
-    for i, step in enumerate(chosen, 1):
-        if step_done(root, step):
-            skipped.append(step.name)
-            continue
-        argv = _with_root(step, root)
-        argv = [str(best_model(Path(a[len(BEST):-1]))) if a.startswith(BEST) else a for a in argv]
-        if step.resumable and (root / step.out).exists():
-            argv.append("--resume")
-        note(f"[{i}/{len(chosen)}] {step.name}: brl {' '.join(shlex.quote(a) for a in argv)}")
-        t0 = time.perf_counter()
-        run_argv(argv)
-        atomic_write_json(root / STEPS_DIR / f"{step.name}.json",
-                          provenance({"argv": argv, "wall_s": round(time.perf_counter() - t0, 1)}, kind="step"))
-        ran.append(step.name)
+    skipped = [s.name for s in chosen if step_done(root, s)]
+    todo = [s for s in chosen if not step_done(root, s)]
+    if jobs > 1:
+        ran = _run_parallel(plan, todo, root, jobs, spawn, note)
+    else:
+        ran = []
+        for i, step in enumerate(todo, 1):
+            argv = _step_argv(step, root)
+            note(f"[{i}/{len(todo)}] {step.name}: brl {' '.join(shlex.quote(a) for a in argv)}")
+            t0 = time.perf_counter()
+            run_argv(argv)
+            _finish(root, step, argv, time.perf_counter() - t0)
+            ran.append(step.name)
     return {"ran": ran, "skipped": skipped, "result": str(root / plan[-1].out)}
+
+
+def _run_parallel(plan: list[Step], todo: list[Step], root: Path, jobs: int,
+                  spawn: Callable[[list[str], Path], subprocess.Popen], note: Callable[[str], None]) -> list[str]:
+    """Up to `jobs` steps at a time, each started once every step it needs has finished; a failure or an
+    interruption stops the others (each keeps what it finished, as its own command does on SIGTERM)."""
+    by_name = {s.name: s for s in plan}
+    pending, running, ran = list(todo), {}, []  # running: name -> (process, argv, start time)
+    try:
+        while pending or running:
+            for step in list(pending):
+                if len(running) >= jobs:
+                    break
+                if all(step_done(root, by_name[n]) for n in step.needs):
+                    argv = _step_argv(step, root)
+                    log = root / STEPS_DIR / f"{step.name}.log"
+                    note(f"start {step.name} ({len(ran) + len(running) + 1}/{len(todo)}): brl "
+                         f"{' '.join(shlex.quote(a) for a in argv)}  [output: {log}]")
+                    running[step.name] = (spawn(argv, log), argv, time.perf_counter())
+                    pending.remove(step)
+            if not running:
+                raise StepFailed(pending[0].name, 1)  # unreachable after check_needs; no step can start
+            time.sleep(0.2)
+            for name, (proc, argv, t0) in list(running.items()):
+                code = proc.poll()
+                if code is None:
+                    continue
+                del running[name]
+                if code:
+                    raise StepFailed(name, code, root / STEPS_DIR / f"{name}.log")
+                _finish(root, by_name[name], argv, time.perf_counter() - t0)
+                ran.append(name)
+                note(f"done {name} ({time.perf_counter() - t0:.0f} s)")
+    finally:
+        for proc, _, _ in running.values():  # Ctrl-C, a kill or a failed step: the others stop and stay resumable
+            proc.terminate()
+        for proc, _, _ in running.values():
+            proc.wait()
+    return ran

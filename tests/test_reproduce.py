@@ -105,3 +105,33 @@ def test_the_quick_paper_study_ends_with_every_table_and_resumes_for_free(tmp_pa
     assert len(list((root / "steps").glob("*.json"))) == len(build_plan("paper", StudyOptions(quick=True)))
     code, _, err = _main(["reproduce", "paper", "--quick", "--workers", "2", "--out", str(root)], capsys)
     assert code == 0 and "0 steps run, 24 already finished" in err
+
+
+def test_parallel_steps_start_when_their_inputs_finished_and_a_failure_stops_the_run(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    opts = StudyOptions(quick=True)
+    plan = build_plan("navigation", opts)
+    started: list[str] = []
+
+    def spawn(argv: list[str], log: Path) -> subprocess.Popen:
+        out = argv[argv.index("--out") + 1]
+        started.append(out)
+        return subprocess.Popen([sys.executable, "-c", f"import os, time; time.sleep(0.1); os.makedirs({out!r})"])
+
+    root = tmp_path / "s"
+    result = run_plan("navigation", plan, plan, root, opts, lambda a: None, note=lambda m: None, jobs=3, spawn=spawn)
+    assert sorted(result["ran"]) == sorted(s.name for s in plan) and result["ran"][-1] == "report"
+    order = {Path(o).relative_to(root).as_posix(): i for i, o in enumerate(started)}
+    for step in plan:  # a step starts after everything it needs has started (and finished)
+        assert all(order[next(s.out for s in plan if s.name == n)] < order[step.out] for n in step.needs)
+
+    from brlcli.reproduce import StepFailed
+
+    def failing(argv: list[str], log: Path) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+
+    with pytest.raises(StepFailed, match=r"failed \(exit 3\)"):
+        run_plan("navigation", plan, plan, tmp_path / "f", opts, lambda a: None, note=lambda m: None, jobs=2,
+                 spawn=failing)

@@ -25,12 +25,22 @@ def reproduce(
     = None,
     workers: Annotated[int, typer.Option(min=1, help="Worker processes of every step that takes them.")] = 1,
     executor: ExecutorKind = "local",
+    jobs: Annotated[int, typer.Option(min=1, help="Independent steps run at the same time, each a process of its own "
+                                                  "(its output in steps/NAME.log); 1: one after another.")] = 1,
     set_: Sets = None,
     only: Annotated[str | None, typer.Option(help="Run only this step (its inputs must have finished).")] = None,
     from_: Annotated[str | None, typer.Option("--from", help="Run this step and the steps after it.")] = None,
 ) -> None:
     """Run a whole study as a declared plan of brl commands in dependency order; finished steps are kept."""
-    from brlcli.reproduce import StudyOptions, build_plan, check_study_dir, run_plan, select_steps, shell_line
+    from brlcli.reproduce import (
+        StepFailed,
+        StudyOptions,
+        build_plan,
+        check_study_dir,
+        run_plan,
+        select_steps,
+        shell_line,
+    )
 
     if executor not in ("local", "ray"):
         raise typer.BadParameter(f"must be local or ray, not '{executor}'", param_hint="--executor")
@@ -57,6 +67,11 @@ def reproduce(
         if isinstance(code, int) and code:
             raise typer.Exit(code)
 
-    result = run_plan(study, plan, chosen, root, opts, run_argv, note=lambda m: console.print(m, highlight=False))
+    try:
+        result = run_plan(study, plan, chosen, root, opts, run_argv, note=lambda m: console.print(m, highlight=False),
+                          jobs=jobs)
+    except StepFailed as exc:
+        typer.echo(f"brl: error: {exc}; finished steps are kept: run the same command again to resume", err=True)
+        raise typer.Exit(exc.code) from None
     console.print(f"{study}: {len(result['ran'])} steps run, {len(result['skipped'])} already finished")
     typer.echo(result["result"])  # the report (paper, navigation) or the calibrated net's run (segnet)
