@@ -225,3 +225,27 @@ def test_navigation_dqn_sees_the_command_and_curves_on_nav_validation(tmp_path: 
     assert net[0].in_features == 34 and meta["train"]["task"] == "navigation"
     policy = drl.DeepRLPolicy("dqn/nav", str(tmp_path / "nav" / "drl.pt"))
     assert policy.uses_command and policy.task == "navigation" and "navigation" in policy.setting
+
+
+def test_navigation_dqn_with_the_brake_trains_in_traffic_on_the_hazard_reward(tmp_path: Path) -> None:
+    traffic = {"task": "navigation", "actions": "stop", "traffic": ("regular",), "r_hazard": 20.0}
+    cfg = DeepRLConfig(**{**TINY, **traffic})
+    assert DeepRLConfig(**{**traffic, "eval_suite": "auto"}).evaluation_suite == "nav_validation_traffic"
+    assert DeepRLConfig.from_dict(cfg.to_dict()) == cfg  # traffic round-trips through config.json's list
+    env = drl._make_env(cfg)
+    try:
+        assert env.action_space.n == 5 and env.unwrapped.hazard is not None
+        assert env.unwrapped.traffic_levels == ("regular",)
+    finally:
+        env.close()
+    train_deep_rl(cfg, tmp_path / "stop")
+    net, meta = load_model(tmp_path / "stop")
+    assert net[-1].out_features == 5 and meta["train"]["actions"] == "stop"
+    policy = drl.DeepRLPolicy("dqn/stop", str(tmp_path / "stop" / "drl.pt"))
+    assert len(policy.actions) == 5 and "stop primitive" in policy.setting
+    with pytest.raises(BrlInputError, match="needs traffic"):
+        DeepRLConfig(r_hazard=20.0)
+    with pytest.raises(BrlInputError, match="action set"):
+        DeepRLConfig(actions="brake")
+    with pytest.raises(BrlInputError, match="nav_validation_traffic does not fit"):
+        DeepRLConfig(eval_suite="nav_validation_traffic")

@@ -1,4 +1,8 @@
-"""Deep RL baseline: Stable-Baselines3 DQN on the BRL agent's task (same env, 30-number state, reward, 4 actions).
+"""Deep RL baseline: Stable-Baselines3 DQN on the BRL agent's task (same env, 30-number state, reward, actions).
+
+The action set, training traffic and hazard reward are brl train's options of the same names (`actions`, `traffic`,
+`r_hazard`, `hazard_predict_s`; outside the paper, issue 35), so a DQN can be trained with the brake on the reward a
+braking BRL agent learns from.
 
 Training runs in chunks of `eval_every` environment steps. Each chunk starts from a fresh environment reset and
 seeds every generator (python, numpy, torch, action space, env) from (seed, chunk), so a run resumed from the
@@ -37,10 +41,10 @@ from brlcli.features import STATE_DIM
 from brlcli.outdir import refuse_existing
 from brlcli.policy import StatePolicy, setting_name
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
-from brlcli.reward import RewardParams, RouteRewardParams
+from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import ACTIONS, DrivingEnv
+from brlcli.sim.gym_env import ACTION_SETS, DrivingEnv
 from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
 from brlcli.sim.roadnet import BRANCH_NAMES, command_branch
 from brlcli.torchfiles import load_torch_doc, save_torch_doc
@@ -82,6 +86,10 @@ class DeepRLConfig:
     start_offset_m: float = 0.0  # training episodes start with a lateral offset ~ U(-a, a) m (brl train's option)
     start_yaw_deg: float = 0.0  # ... and a heading offset ~ U(-b, b) degrees
     camera_pitch_deg: float = -15.0  # pitch of the state camera (deg), as brl train's
+    actions: str = "paper"  # brl train's action set: paper (the four primitives), stop, fine or fine_stop
+    traffic: tuple[str, ...] = ()  # outside the paper: NoCrash traffic levels of the training episodes (brl train's)
+    r_hazard: float = 0.0  # outside the paper, > 0: brl train's hazard reward (HazardRewardParams)
+    hazard_predict_s: float = 0.0  # ... predicting road users this far ahead (s)
     device: str = "cpu"  # SB3's device for the networks: cpu (the default), cuda, cuda:N or auto (brlcli.devices)
 
     def __post_init__(self) -> None:
@@ -97,16 +105,23 @@ class DeepRLConfig:
             raise BrlInputError(f"--eval-every must be a multiple of the train frequency ({self.train_freq})")
         if self.task not in TASKS:
             raise BrlInputError(f"unknown task '{self.task}'; choose one of {', '.join(TASKS)}")
-        if self.eval_suite not in ("auto", "paper", "nav_validation", "none"):
-            raise BrlInputError(f"--eval-suite must be paper, nav_validation or none, not '{self.eval_suite}'")
-        if (self.task, self.eval_suite) in (("lane-keeping", "nav_validation"), ("navigation", "paper")):
+        if self.eval_suite not in ("auto", "paper", "nav_validation", "nav_validation_traffic", "none"):
+            raise BrlInputError("--eval-suite must be paper, nav_validation, nav_validation_traffic or none, not "
+                                f"'{self.eval_suite}'")
+        if (self.eval_suite.startswith("nav_validation") and self.task != "navigation") or \
+                (self.task, self.eval_suite) == ("navigation", "paper"):
             raise BrlInputError(f"--eval-suite {self.eval_suite} does not fit --task {self.task}: lane keeping "
                                 "evaluates on paper, navigation on nav_validation (its routes need commands)")
+        if self.r_hazard and not self.traffic:
+            raise BrlInputError("the hazard reward (r_hazard) needs traffic levels, e.g. --set "
+                                "'traffic=[\"empty\",\"regular\",\"dense\"]'")
         from brlcli.sim.weather import get_weather
 
         get_weather(self.weather)
         try:
             self.reward_params()
+            self.hazard_reward()
+            DrivingEnv.check_traffic_options(self.actions, self.traffic, "paper", 0.0)
             DrivingEnv.check_episode_rules(self.offroad_end, self.start_offset_m, self.start_yaw_deg,
                                            self.otherlane_end)
             self.camera()
@@ -117,15 +132,24 @@ class DeepRLConfig:
         """The reward's parameters for this run (as `brl train`'s)."""
         return RewardParams(target_speed_kmh=self.target_speed_kmh, road_view=self.road_view)
 
+    def hazard_reward(self) -> HazardRewardParams | None:
+        """The hazard reward terms (None when r_hazard is 0: the paper's reward), as brl train's."""
+        if not self.r_hazard:
+            return None
+        return HazardRewardParams(r_hazard=self.r_hazard, predict_s=self.hazard_predict_s)
+
     def camera(self) -> CameraConfig:
         """The state camera of this run (CoRL2017's mount and size, the configured pitch)."""
         return CameraConfig(pitch_deg=self.camera_pitch_deg)
 
     @property
     def evaluation_suite(self) -> str:
-        """The learning curve's suite: `eval_suite`, with auto resolved to the task's (paper or nav_validation)."""
+        """The learning curve's suite: `eval_suite`, with auto resolved to the task's (paper or nav_validation;
+        nav_validation_traffic for navigation trained in traffic, as brl train's)."""
         if self.eval_suite == "auto":
-            return "nav_validation" if self.task == "navigation" else "paper"
+            if self.task == "navigation":
+                return "nav_validation_traffic" if self.traffic else "nav_validation"
+            return "paper"
         return self.eval_suite
 
     @property
@@ -137,6 +161,7 @@ class DeepRLConfig:
         """JSON-ready form."""
         d = asdict(self)
         d["net_arch"] = list(self.net_arch)
+        d["traffic"] = list(self.traffic)
         return d
 
     @classmethod
@@ -146,8 +171,9 @@ class DeepRLConfig:
         d = dict(d)
         if "road_view" not in d:  # written before brl train's study defaults: brl 0.1's reward and episodes
             d.update(road_view="road", offroad_end=None)
-        if "net_arch" in d:
-            d["net_arch"] = tuple(d["net_arch"])
+        for key in ("net_arch", "traffic"):
+            if key in d:
+                d[key] = tuple(d[key])
         return cls(**d)
 
 
@@ -182,7 +208,8 @@ def q_network(net_arch: tuple[int, ...], state_dim: int, n_actions: int) -> nn.S
 def save_model(path: Path, q_net: nn.Module, cfg: DeepRLConfig, env_steps: int) -> None:
     """Write a Q-network file (state dict, architecture, training config) atomically."""
     save_torch_doc(path, DRL_FORMAT, DRL_FORMAT_VERSION, {
-        "algo": cfg.algo, "net_arch": list(cfg.net_arch), "state_dim": cfg.state_dim, "n_actions": len(ACTIONS),
+        "algo": cfg.algo, "net_arch": list(cfg.net_arch), "state_dim": cfg.state_dim,
+        "n_actions": len(ACTION_SETS[cfg.actions]),
         "env_steps": env_steps, "train": json.dumps(cfg.to_dict(), sort_keys=True),
         "state_dict": {k: v.cpu() for k, v in q_net.state_dict().items()}})
 
@@ -195,12 +222,18 @@ def load_model(path: str | Path) -> tuple[nn.Sequential, dict[str, Any]]:
     doc = load_torch_doc(path, DRL_FORMAT, DRL_FORMAT_VERSION, "deep RL model", "brl train-rl")
     try:
         state_dim, n_actions = int(doc["state_dim"]), int(doc["n_actions"])
-        if state_dim not in (STATE_DIM, STATE_DIM + len(BRANCH_NAMES)) or n_actions != len(ACTIONS):
+        train = json.loads(doc["train"])
+        actions = str(train.get("actions", "paper"))
+        if actions not in ACTION_SETS:
+            raise BrlInputError(f"deep RL model {path} names action set '{actions}', which this brl does not have "
+                                f"({', '.join(ACTION_SETS)})")
+        if state_dim not in (STATE_DIM, STATE_DIM + len(BRANCH_NAMES)) or n_actions != len(ACTION_SETS[actions]):
             raise BrlInputError(f"deep RL model {path} has state size {state_dim} and {n_actions} actions; brl's "
-                                f"task uses {STATE_DIM} and {len(ACTIONS)}")
+                                f"task uses {STATE_DIM} (+{len(BRANCH_NAMES)} for navigation) and action set "
+                                f"'{actions}' {len(ACTION_SETS[actions])}")
         net = q_network(tuple(int(h) for h in doc["net_arch"]), state_dim, n_actions)
         net.load_state_dict(doc["state_dict"])
-        meta = {"algo": str(doc["algo"]), "env_steps": int(doc["env_steps"]), "train": json.loads(doc["train"])}
+        meta = {"algo": str(doc["algo"]), "env_steps": int(doc["env_steps"]), "train": train}
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise BrlInputError(f"deep RL model {path} is damaged: {exc}".splitlines()[0]) from None
     return net.eval(), meta
@@ -263,9 +296,15 @@ class DeepRLPolicy(StatePolicy):
         setting = f"{meta['algo'].upper()}-{setting_name(meta['train'].get('input', 'gt'), deploy)}"
         pitch = float(meta["train"].get("camera_pitch_deg", CameraConfig().pitch_deg))
         nav = self.task == "navigation"
-        super().__init__(name, f"{setting} (navigation)" if nav else setting,
+        actions = str(meta["train"].get("actions", "paper"))
+        label = ", ".join(["navigation"] * nav + ([_ACTIONS_LABEL[actions]] if actions != "paper" else []))
+        super().__init__(name, f"{setting} ({label})" if label else setting,
                          greedy_command_action_fn(net) if nav else greedy_action_fn(net),
-                         labeler_for(deploy, segnet), CameraConfig(pitch_deg=pitch), uses_command=nav)
+                         labeler_for(deploy, segnet), CameraConfig(pitch_deg=pitch), uses_command=nav,
+                         actions=actions)
+
+
+_ACTIONS_LABEL = {"stop": "stop primitive", "fine": "fine steering", "fine_stop": "fine steering, stop primitive"}
 
 
 @dataclass
@@ -291,7 +330,8 @@ def _make_env(cfg: DeepRLConfig) -> Any:
                      labeler=labeler_for(cfg.input, cfg.segnet, "--input"), camera=cfg.camera(),
                      offroad_end=cfg.offroad_end, start_offset_m=cfg.start_offset_m,
                      start_yaw_deg=cfg.start_yaw_deg, otherlane_end=cfg.otherlane_end,
-                     route_reward=RouteRewardParams() if nav else None)
+                     route_reward=RouteRewardParams() if nav else None, actions=cfg.actions,
+                     traffic=tuple(cfg.traffic), hazard=cfg.hazard_reward())
     return CommandObservation(env) if nav else env
 
 
@@ -432,9 +472,10 @@ def train_deep_rl(cfg: DeepRLConfig, run_dir: Path, resume: bool = False,
                 t_eval = time.perf_counter()
                 if cfg.task == "navigation":
                     pol = StatePolicy("dqn", setting, greedy_command_action_fn(q_net), env.unwrapped.labeler,
-                                      cfg.camera(), uses_command=True)
+                                      cfg.camera(), uses_command=True, actions=cfg.actions)
                 else:
-                    pol = StatePolicy("dqn", setting, greedy_action_fn(q_net), env.labeler, cfg.camera())
+                    pol = StatePolicy("dqn", setting, greedy_action_fn(q_net), env.labeler, cfg.camera(),
+                                      actions=cfg.actions)
                 curve.append({"env_steps": int(model.num_timesteps), **evaluator.evaluate(pol)})
                 write_curve(run_dir / CURVE_FILE, curve)
                 eval_s += time.perf_counter() - t_eval

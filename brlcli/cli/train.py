@@ -253,7 +253,8 @@ def train_rl(
     eval_every: Annotated[int, typer.Option(help="Evaluate on --eval-suite every N env steps (learning curve).")]
     = 5_000,
     eval_suite: Annotated[str, typer.Option(help="paper (the lane-keeping test suite), nav_validation (the "
-                                                 "navigation task's) or none; auto: the task's.")] = "auto",
+                                                 "navigation task's), nav_validation_traffic or none; auto: "
+                                                 "the task's (with traffic: nav_validation_traffic).")] = "auto",
     seed: Annotated[int, typer.Option(min=0, help="Seed of the network, exploration and routes.")] = 0,
     device: Device = "cpu",
     out: Annotated[str | None, out_option("train-rl", "drl.pt, learning_curve.csv, checkpoint/")] = None,
