@@ -124,6 +124,8 @@ class TrainConfig:
     state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers), "nearness" or "speed" (outside it)
     brake_gate_steps: int = 0  # outside the paper, > 0: after the navigation model (the driver) is trained on empty
     # roads, a brake gate (`brlcli.agent.gate`: go or stop) learns this many steps in `traffic` with the hazard reward
+    ghost_traffic: bool = False  # outside the paper: with `traffic`, the car passes through road users (seen, moving,
+    # braking for it; no contact, no crash); a brake gate's driver then trains among them, the gate in real traffic
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
     # driver/model.npz; or an existing navigation model.npz or member set, then only the gate is trained)
 
@@ -172,6 +174,9 @@ class TrainConfig:
         except ValueError as exc:
             raise BrlInputError(f"bad training configuration: {exc}") from None
         get_weather(self.weather)
+        if not isinstance(self.ghost_traffic, bool) or (self.ghost_traffic and not self.traffic):
+            raise BrlInputError("ghost_traffic is true or false and needs traffic levels (e.g. --set "
+                                "'traffic=[\"regular\",\"dense\"]')")
         self._check_gate()
 
     def _check_gate(self) -> None:
@@ -209,11 +214,14 @@ class TrainConfig:
 
     def driver_config(self) -> TrainConfig:
         """The configuration of a gated run's driver: the same run on empty roads, without the gate's options."""
+        if self.ghost_traffic:  # the driver trains among ghost road users, without the gate's reward
+            return replace(self, brake_gate_steps=0, r_hazard=0.0, r_stand=0.0)
         return replace(self, brake_gate_steps=0, traffic=[], r_hazard=0.0, r_stand=0.0)
 
     def gate_config(self, driver_model: str) -> TrainConfig:
         """The configuration of a gated run's gate: `brake_gate_steps` learning steps over the frozen driver."""
         return replace(self, steps=self.brake_gate_steps, brake_gate_steps=0, driver_model=driver_model,
+                       ghost_traffic=False,
                        committee=1, member=0, restart_below=None, branch_restart_below=None, curve_every=0)
 
     def to_dict(self) -> dict[str, Any]:

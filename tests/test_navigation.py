@@ -338,6 +338,37 @@ def test_a_brake_gate_learns_over_a_frozen_committee_and_benches(tmp_path: Path)
     assert (tmp_path / "gate_only" / "log.csv").read_bytes() == (seed / "gate" / "log.csv").read_bytes()
 
 
+def test_a_ghost_traffic_driver_trains_among_road_users_and_a_gate_may_see_more_than_it(tmp_path: Path) -> None:
+    import csv
+
+    from brlcli.agent.gate import BrakeGatedAgent
+    from brlcli.policy import BRLPolicy
+    from brlcli.train import train_many
+
+    cfg = TrainConfig(task="navigation", steps=80, seed=0, evaluate=False, committee=1, actions="fine",
+                      brake_gate_steps=40, traffic=["dense"], r_hazard=20.0, ghost_traffic=True)
+    train_many(cfg, [0], tmp_path / "ghost")
+    seed = tmp_path / "ghost" / "seed_0"
+    driver_cfg = json.loads((seed / "driver" / "config.json").read_text())["config"]
+    assert driver_cfg["traffic"] == ["dense"] and driver_cfg["ghost_traffic"] and driver_cfg["r_hazard"] == 0.0
+    rows = list(csv.DictReader(open(seed / "driver" / "log.csv")))
+    assert {r["traffic"] for r in rows} == {"dense"} and not any(float(r["r_collision"]) for r in rows)
+    gate_cfg = json.loads((seed / "gate" / "config.json").read_text())["config"]
+    assert not gate_cfg["ghost_traffic"]  # the gate learns in real traffic
+    # a gate with the nearness state over the paper-state driver: the driver sees the first 30 numbers
+    near = TrainConfig(task="navigation", steps=40, seed=0, evaluate=False, actions="fine", traffic=["dense"],
+                       r_hazard=20.0, state="nearness", driver_model=str(seed / "driver"),
+                       branch_restart_below=None)
+    train_run(near, tmp_path / "near")
+    agent = BrakeGatedAgent.load(tmp_path / "near" / "model.npz")
+    assert agent.state_dim == 33 and agent.driver.state_dim == 30 and agent.gate.state_dim == 9
+    policy = BRLPolicy("brl", str(tmp_path / "near" / "model.npz"))
+    state = np.random.default_rng(2).dirichlet(np.ones(30))
+    assert policy.act(np.concatenate([state, [0.0, 0.9, 0.0]]), 2) in range(9)
+    with pytest.raises(BrlInputError, match="ghost_traffic"):
+        TrainConfig(task="navigation", ghost_traffic=True)
+
+
 def load_navigation_agent_checked(path: Path):
     from brlcli.agent.command import load_navigation_agent
     from brlcli.agent.gate import BrakeGatedAgent

@@ -278,6 +278,16 @@ def test_hitting_a_pedestrian_raises_collision_pedestrians_only(traffic_world):
     assert any(np.any(f.labels == CarlaClass.PEDESTRIANS) for f in before)
 
 
+def test_without_road_user_contact_the_car_drives_through_a_vehicle_it_sees():
+    """Ghost traffic (issue 35, outside the paper): the held vehicle is in view, but the car passes through it."""
+    with World("town01", vehicles=1, pedestrians=1, road_user_contact=False) as w:
+        spec, frames = _hit_agent(w, "vehicle", frames=60)
+    m = frames[-1].measurements
+    assert (m.collision_vehicles, m.collision_pedestrians, m.collision_other) == (0.0, 0.0, 0.0)
+    assert _along(spec.start, m) > 10.0 + LENGTH_M  # past the vehicle
+    assert any(np.any(f.labels == CarlaClass.VEHICLES) for f in frames)
+
+
 def test_no_collision_when_standing_still(traffic_world):
     w = traffic_world
     spec = _straight_spec(w.town)

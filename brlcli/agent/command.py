@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from brlcli.agent.bayes import BayesianAgent, LearnStep, Prefixed, _one_line, open_model_npz, save_model_arrays
-from brlcli.agent.committee import committee_members, majority_vote
+from brlcli.agent.committee import committee_members, majority_vote, model_file
 from brlcli.agent.params import BRLParams
 from brlcli.errors import BrlInputError
 from brlcli.retired import RETIRED_CONFIG, retired_message
@@ -244,7 +244,7 @@ def load_navigation_agent(path: str | os.PathLike[str]) -> Any:
             return CommitteeAgent(agents) if len(agents) > 1 else agents[0]
         except ValueError as exc:
             raise BrlInputError(f"committee members in {path}: {exc}") from None
-    path = os.fspath(path)
+    path = model_file(path)
     npz = open_model_npz(path)
     with npz:
         if "kind" in npz.files and str(npz["kind"]) == GATED_KIND:
@@ -257,7 +257,7 @@ def load_navigation_agent(path: str | os.PathLike[str]) -> Any:
 def is_command_model(path: str | os.PathLike[str]) -> bool:
     """Whether a model file (or a member set's first member) holds a command-conditioned agent, a committee or a
     brake-gated one (False for lane-keeping models, lane-keeping committees and unreadable files)."""
-    path = (committee_members(path) or [path])[0]
+    path = (committee_members(path) or [model_file(path)])[0]
     try:
         with np.load(os.fspath(path), allow_pickle=False) as npz:
             return "kind" in npz.files and str(npz["kind"]) in (COMMAND_KIND, COMMITTEE_KIND, GATED_KIND)

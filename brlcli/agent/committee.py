@@ -105,6 +105,12 @@ def committee_members(path: str | os.PathLike[str]) -> list[Path]:
     return sorted(members, key=lambda p: int(p.parent.name.removeprefix("member_")))
 
 
+def model_file(path: str | os.PathLike[str]) -> str:
+    """The model file a path names: a run directory's own model.npz where it has one, else the path itself."""
+    run = Path(path)
+    return os.fspath(run / "model.npz") if run.is_dir() and (run / "model.npz").is_file() else os.fspath(path)
+
+
 def load_lane_keeping_agent(path: str | os.PathLike[str]) -> BayesianAgent | LaneKeepingCommittee:
     """A deployable lane-keeping model: the paper's agent or a committee of them, from its model file or from a
     member set's directory (`committee_members`; BrlInputError otherwise)."""
@@ -115,7 +121,7 @@ def load_lane_keeping_agent(path: str | os.PathLike[str]) -> BayesianAgent | Lan
             return LaneKeepingCommittee(agents) if len(agents) > 1 else agents[0]
         except ValueError as exc:
             raise BrlInputError(f"committee members in {path}: {exc}") from None
-    path = os.fspath(path)
+    path = model_file(path)
     npz = open_model_npz(path)
     with npz:
         kind = str(npz["kind"]) if "kind" in npz.files else ""

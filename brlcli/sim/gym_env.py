@@ -80,7 +80,7 @@ class DrivingEnv(gym.Env):
                  otherlane_end: float | None = None, route_reward: RouteRewardParams | None = None,
                  junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None,
                  actions: str = "paper", traffic: tuple[str, ...] = (), hazard: HazardRewardParams | None = None,
-                 state: str = "paper", r_stand: float = 0.0) -> None:
+                 state: str = "paper", r_stand: float = 0.0, road_user_contact: bool = True) -> None:
         super().__init__()
         try:
             self.check_traffic_options(actions, traffic, state, r_stand)
@@ -105,7 +105,8 @@ class DrivingEnv(gym.Env):
             from brlcli.sim.traffic import NOCRASH_TRAFFIC
 
             self._worlds = {t: World(town, weather=weather, vehicles=NOCRASH_TRAFFIC[town][t][0],
-                                     pedestrians=NOCRASH_TRAFFIC[town][t][1], camera=camera)
+                                     pedestrians=NOCRASH_TRAFFIC[town][t][1], camera=camera,
+                                     road_user_contact=road_user_contact)
                             for t in dict.fromkeys(traffic)}
         else:
             self._worlds = {"": World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians,

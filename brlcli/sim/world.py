@@ -76,7 +76,8 @@ class World:
     """
 
     def __init__(self, town: Town | str, weather: int | str | Weather = 1, seed: int = 0, vehicles: int = 0,
-                 pedestrians: int = 0, camera: CameraConfig | None = None, substeps: int = 2) -> None:
+                 pedestrians: int = 0, camera: CameraConfig | None = None, substeps: int = 2,
+                 road_user_contact: bool = True) -> None:
         self.town = town if isinstance(town, Town) else load_town(town)
         self.weather = get_weather(weather)
         if vehicles < 0 or pedestrians < 0:
@@ -86,6 +87,7 @@ class World:
         self.seed = int(seed)
         self.camera = camera or CameraConfig()
         self.substeps = substeps
+        self.road_user_contact = road_user_contact  # False: the ego car passes through road users (ghost traffic)
         self.network = RoadNetwork(self.town)
         self.map = TownMap(self.network)
         static = self.town.objects.copy()
@@ -150,6 +152,9 @@ class World:
             self._body_kind[b] = 1
             self.body_classes[b] = CarlaClass.PEDESTRIANS
         self._synced = np.zeros(len(self._veh_bodies) + len(self._ped_bodies), bool)
+        if not self.road_user_contact:  # outside the paper: road users are seen and move, but never touch the car
+            for b in self._veh_bodies + self._ped_bodies:
+                pb.setCollisionFilterPair(self._ego_body, b, -1, -1, 0, physicsClientId=c)
         # every episode starts from this saved state, so that an episode does not depend on the ones before it
         self._initial_state = pb.saveState(physicsClientId=c)
 
