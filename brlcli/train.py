@@ -142,7 +142,8 @@ def _new_gate(cfg: TrainConfig, dim: int, n_actions: int) -> Learner:
         raise BrlInputError(f"driver_model {cfg.driver_model} has state size {driver.state_dim} and {driver.n_actions} "
                             f"actions, but state '{cfg.state}' and actions '{cfg.actions}' need {dim} (or the paper's "
                             f"{STATE_DIM}: the gate alone then sees the option's numbers) and {n_actions}")
-    return BrakeGatedAgent(driver, params=cfg.agent_params(), state_dim=dim)  # type: ignore[return-value]
+    return BrakeGatedAgent(driver, params=cfg.agent_params(), state_dim=dim,  # type: ignore[return-value]
+                           scale=float(cfg.gate_scale))
 
 
 def load_learner(cfg: TrainConfig, path: Path) -> Learner:

@@ -4,6 +4,7 @@ agent, its training, its model file and the bench's task checks."""
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -367,6 +368,12 @@ def test_a_ghost_traffic_driver_trains_among_road_users_and_a_gate_may_see_more_
     assert policy.act(np.concatenate([state, [0.0, 0.9, 0.0]]), 2) in range(9)
     with pytest.raises(BrlInputError, match="ghost_traffic"):
         TrainConfig(task="navigation", ghost_traffic=True)
+    # a gate on the corridor state alone (gate_scale 0): corridor nearness of lane and road, and the speed
+    corridor = replace(near, state="corridor", gate_scale=0.0)
+    train_run(corridor, tmp_path / "corridor")
+    agent = BrakeGatedAgent.load(tmp_path / "corridor" / "model.npz")
+    assert agent.state_dim == 33 and agent.gate.state_dim == 3 and agent.scale == 0.0
+    assert "corridor state" in BRLPolicy("brl", str(tmp_path / "corridor" / "model.npz")).setting
 
 
 def load_navigation_agent_checked(path: Path):
@@ -384,6 +391,8 @@ def load_navigation_agent_checked(path: Path):
     ({"actions": "stop"}, "set actions to one of paper, fine"),
     ({"task": "lane-keeping"}, "--task navigation"),
     ({"brake_gate_steps": -5}, "brake_gate_steps must be an integer >= 0"),
+    ({"gate_scale": -1.0}, "gate_scale must be a number >= 0"),
+    ({"gate_scale": 0}, "0 only with a state option"),
     ({"driver_model": "README.md"}, "is not a navigation model"),
     ({"driver_model": "models/brl_gt/seed_0"}, "is not a navigation model"),
     ({"driver_model": "models/brl_nav/seed_0/member_0/model.npz", "committee": 3}, "drop committee"),
