@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import functools
-from typing import Any
-
 import numpy as np
 
 from brlcli.classes import CarlaClass
@@ -63,12 +60,10 @@ def state_vector(labels: np.ndarray) -> np.ndarray:
 
 NEARNESS_RANGE_M = 30.0
 """Depth (m) beyond which a road user adds nothing to the nearness state (outside the paper)."""
-STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1, "corridor": 3}
+STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1}
 """Agent state options (issue 35): the paper's 30 numbers; or those and 3 nearness numbers from the camera's depth
 image (`depth_nearness`), or and the measured forward speed (clip(v / SPEED_SCALE_KMH, 0, 1), so that standing still
-and driving are different states), or the corridor nearness of the lane and the road straight ahead
-(`corridor_nearness`, from the depth image and the camera's geometry) and that speed; all outside the paper. Value:
-how many numbers the option adds."""
+and driving are different states); both outside the paper. Value: how many numbers the option adds."""
 SPEED_SCALE_KMH = 30.0
 
 
@@ -83,60 +78,16 @@ def depth_nearness(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
     return np.array([near[:, :c1].max(initial=0.0), near[:, c1:c2].max(initial=0.0), near[:, c2:].max(initial=0.0)])
 
 
-CORRIDOR_HALF_M = (1.5, 3.5)
-"""Half-widths (m) of the corridors straight ahead of the car whose closest road user `corridor_nearness` reports:
-the car's own lane (its half width and a margin) and the road beside it (outside the paper)."""
-CORRIDOR_RANGE_M = 25.0
-"""Distance ahead (m) beyond which a road user adds nothing to the corridor nearness (outside the paper)."""
-
-
-@functools.lru_cache(maxsize=8)
-def pixel_ground_offsets(camera: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Per pixel of a camera (CameraConfig), the car-frame offsets (forward, left) per metre of planar depth and
-    the camera's mount: a pixel at depth d lies at (x_m + d * fwd, y_m + d * left) in the car's frame."""
-    h, w, f = camera.height, camera.width, camera.focal_px
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    p = np.radians(camera.pitch_deg)
-    d_cam = np.stack([(u - (w - 1) / 2.0) / f, (v - (h - 1) / 2.0) / f, np.ones_like(u)], axis=-1)
-    r_cb = np.array([[0.0, np.sin(p), np.cos(p)], [-1.0, 0.0, 0.0], [0.0, -np.cos(p), np.sin(p)]])
-    d_b = d_cam @ r_cb.T
-    return d_b[..., 0], d_b[..., 1]
-
-
-def corridor_nearness(labels: np.ndarray, depth: np.ndarray, camera: Any) -> np.ndarray:
-    """Nearness clip(1 - x / CORRIDOR_RANGE_M, 0, 1) of the closest vehicle or pedestrian pixel whose ground position
-    (from the planar depth and the camera's geometry) lies in each corridor straight ahead (CORRIDOR_HALF_M),
-    0 where there is none: 2 numbers (outside the paper)."""
-    fwd, left = pixel_ground_offsets(camera)
-    d = np.asarray(depth, np.float64)
-    x, y = camera.x_m + d * fwd, camera.y_m + d * left
-    dynamic = (labels == CarlaClass.VEHICLES) | (labels == CarlaClass.PEDESTRIANS)
-    out = []
-    for half in CORRIDOR_HALF_M:
-        inside = dynamic & (np.abs(y) < half) & (x > 0.0)
-        near = np.clip(1.0 - x[inside] / CORRIDOR_RANGE_M, 0.0, 1.0)
-        out.append(float(near.max(initial=0.0)))
-    return np.array(out)
-
-
 def agent_state(labels: np.ndarray, depth: np.ndarray | None, option: str = "paper",
-                speed_kmh: float = 0.0, camera: Any = None) -> np.ndarray:
-    """The agent's state under a state option (STATE_OPTIONS): the 30-vector, with the option's numbers appended
-    (`camera`, the CameraConfig of the image, for the corridor option; None: the default camera)."""
+                speed_kmh: float = 0.0) -> np.ndarray:
+    """The agent's state under a state option (STATE_OPTIONS): the 30-vector, with the option's numbers appended."""
     state = state_vector(labels)
     if option == "paper":
         return state
-    speed = min(max(speed_kmh / SPEED_SCALE_KMH, 0.0), 1.0)
     if option == "speed":
-        return np.append(state, speed)
+        return np.append(state, min(max(speed_kmh / SPEED_SCALE_KMH, 0.0), 1.0))
     if depth is None:
-        raise ValueError(f"the {option} state needs the camera's depth image")
-    if option == "corridor":
-        if camera is None:
-            from brlcli.sim.camera import CameraConfig
-
-            camera = CameraConfig()
-        return np.concatenate([state, corridor_nearness(labels, depth, camera), [speed]])
+        raise ValueError("the nearness state needs the camera's depth image")
     return np.concatenate([state, depth_nearness(labels, depth)])
 
 

@@ -134,7 +134,7 @@ class StatePolicy:
         self.camera = None if camera == CameraConfig() else camera  # None: the bench's default camera
         self.actions = ACTION_SETS[actions]
         self.state_option = state
-        self.needs_depth = state in ("nearness", "corridor")
+        self.needs_depth = state == "nearness"
 
     @property
     def needs_rgb(self) -> bool:
@@ -147,8 +147,8 @@ class StatePolicy:
     def decide(self, obs: Observation) -> Control:
         """The action primitive chosen on the (ground-truth or estimated) label image's state."""
         labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
-        speed = obs.measurements.forward_speed_kmh if self.state_option in ("speed", "corridor") else 0.0
-        state = agent_state(labels, obs.depth, self.state_option, speed, self.camera)
+        speed = obs.measurements.forward_speed_kmh if self.state_option == "speed" else 0.0
+        state = agent_state(labels, obs.depth, self.state_option, speed)
         if self.uses_command:
             return self.actions[int(self.act(state, obs.command))]
         return self.actions[int(self.act(state))]

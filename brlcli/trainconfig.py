@@ -121,14 +121,11 @@ class TrainConfig:
     hazard_slow_m: float = 15.0
     hazard_predict_s: float = 0.0  # how far ahead the hazard reward predicts road users (s; the expert's: 2)
     r_stand: float = 0.0  # outside the paper: cost per decision of standing still (< 1 km/h) with no hazard ahead
-    state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers); "nearness", "speed" or "corridor"
-    # (outside it)
+    state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers), "nearness" or "speed" (outside it)
     brake_gate_steps: int = 0  # outside the paper, > 0: after the navigation model (the driver) is trained on empty
     # roads, a brake gate (`brlcli.agent.gate`: go or stop) learns this many steps in `traffic` with the hazard reward
     ghost_traffic: bool = False  # outside the paper: with `traffic`, the car passes through road users (seen, moving,
     # braking for it; no contact, no crash); a brake gate's driver then trains among them, the gate in real traffic
-    gate_scale: float = 1.0  # outside the paper: a brake gate sees the road-user shares times this (0: only the
-    # numbers of the state option)
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
     # driver/model.npz; or an existing navigation model.npz or member set, then only the gate is trained)
 
@@ -188,10 +185,6 @@ class TrainConfig:
         if isinstance(self.brake_gate_steps, bool) or not isinstance(self.brake_gate_steps, int) or \
                 self.brake_gate_steps < 0:
             raise BrlInputError(f"brake_gate_steps must be an integer >= 0, got {self.brake_gate_steps!r}")
-        if isinstance(self.gate_scale, bool) or not isinstance(self.gate_scale, int | float) or \
-                not self.gate_scale >= 0 or (self.gate_scale == 0 and self.state == "paper"):
-            raise BrlInputError(f"gate_scale must be a number >= 0 (0 only with a state option, which the gate then "
-                                f"sees alone), got {self.gate_scale!r}")
         if not gated:
             return
         if self.task != "navigation" or not self.traffic or not self.r_hazard:

@@ -29,14 +29,12 @@ from scipy.stats import rankdata
 
 from brlcli.autopilot import Autopilot
 from brlcli.bench.suites import NOCRASH_TRAFFIC
-from brlcli.features import corridor_nearness, depth_nearness, state_vector
+from brlcli.features import depth_nearness, state_vector
 from brlcli.provenance import atomic_write_json
 from brlcli.sim import World
 from brlcli.sim.gym_env import FRAMES_PER_DECISION
-from brlcli.sim.hazard import hazard_gap_m
 
 NEAR_M = 8.0
-LABEL_GAP = os.environ.get("BRL_EVIDENCE_GAP", "gap")
 
 
 def _episode(seed: int) -> dict[str, list]:
@@ -52,18 +50,15 @@ def _episode(seed: int) -> dict[str, list]:
             break
     frame = world.reset(tuple(poses[a]), seed=seed)
     pilot = Autopilot(world, route, np.random.default_rng(seed), noise=None)
-    rows: dict[str, list] = {"state": [], "gap": [], "gap_now": [], "depth": [], "speed": [], "corridor": []}
+    rows: dict[str, list] = {"state": [], "gap": [], "depth": [], "speed": []}
     for i in range(900):
         m = frame.measurements
         if i % FRAMES_PER_DECISION == 0:
             _, labels, depth = world.render(rgb=False)
             rows["state"].append(state_vector(labels).tolist())
             rows["depth"].append(depth_nearness(labels, depth).tolist())
-            rows["corridor"].append(corridor_nearness(labels, depth, world.camera).tolist())
             gap = pilot._obstacle_gap(m)
             rows["gap"].append(gap if math.isfinite(gap) else 1e3)
-            now = hazard_gap_m(world.traffic, route, m.x, m.y, m.yaw_deg, (0.0,))
-            rows["gap_now"].append(now if math.isfinite(now) else 1e3)
             rows["speed"].append(m.forward_speed_kmh)
         frame = world.step(pilot.expert(m), render=False)
         if math.hypot(frame.measurements.x - route.points[-1][0], frame.measurements.y - route.points[-1][1]) < 2.0:
@@ -119,19 +114,14 @@ def main() -> None:
     data = {}
     for part, eps in split.items():
         state = np.concatenate([np.array(e["state"]) for e in eps])
-        depth = np.concatenate([np.column_stack([e["depth"], e["corridor"]]) for e in eps])
-        gap = np.concatenate([np.array(e[LABEL_GAP]) for e in eps])
+        depth = np.concatenate([np.array(e["depth"]) for e in eps])
+        gap = np.concatenate([np.array(e["gap"]) for e in eps])
         data[part] = (state, depth, (gap < NEAR_M).astype(float))
     sets = {
         "30-number state": lambda s, d: s,
         "30-number state + middle-column nearness (31)": lambda s, d: np.column_stack([s, d[:, 1]]),
-        "30-number state + three column nearnesses (33)": lambda s, d: np.column_stack([s, d[:, :3]]),
+        "30-number state + three column nearnesses (33)": lambda s, d: np.column_stack([s, d]),
         "middle-column nearness alone (1)": lambda s, d: d[:, 1:2],
-        "the gate's six road-user shares (6)": lambda s, d: s.reshape(-1, 6, 5)[:, :, 3],
-        "corridor nearness, lane and road ahead (2)": lambda s, d: d[:, 3:5],
-        "six road-user shares + corridor nearness (8)": lambda s, d: np.column_stack([s.reshape(-1, 6, 5)[:, :, 3],
-                                                                                        d[:, 3:5]]),
-        "30-number state + corridor nearness (32)": lambda s, d: np.column_stack([s, d[:, 3:5]]),
     }
     out = {"decisions_fit": len(data["fit"][2]), "decisions_test": len(data["test"][2]),
            "near_share_test": float(data["test"][2].mean()), "sets": {}}

@@ -4,7 +4,6 @@ agent, its training, its model file and the bench's task checks."""
 import json
 import subprocess
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -339,7 +338,7 @@ def test_a_brake_gate_learns_over_a_frozen_committee_and_benches(tmp_path: Path)
     assert (tmp_path / "gate_only" / "log.csv").read_bytes() == (seed / "gate" / "log.csv").read_bytes()
 
 
-def test_a_ghost_traffic_driver_trains_among_road_users_and_a_gate_may_see_more_than_it(tmp_path: Path) -> None:
+def test_a_ghost_traffic_driver_trains_among_road_users_and_its_gate_in_real_traffic(tmp_path: Path) -> None:
     import csv
 
     from brlcli.agent.gate import BrakeGatedAgent
@@ -356,24 +355,15 @@ def test_a_ghost_traffic_driver_trains_among_road_users_and_a_gate_may_see_more_
     assert {r["traffic"] for r in rows} == {"dense"} and not any(float(r["r_collision"]) for r in rows)
     gate_cfg = json.loads((seed / "gate" / "config.json").read_text())["config"]
     assert not gate_cfg["ghost_traffic"]  # the gate learns in real traffic
-    # a gate with the nearness state over the paper-state driver: the driver sees the first 30 numbers
-    near = TrainConfig(task="navigation", steps=40, seed=0, evaluate=False, actions="fine", traffic=["dense"],
-                       r_hazard=20.0, state="nearness", driver_model=str(seed / "driver"),
-                       branch_restart_below=None)
-    train_run(near, tmp_path / "near")
-    agent = BrakeGatedAgent.load(tmp_path / "near" / "model.npz")
-    assert agent.state_dim == 33 and agent.driver.state_dim == 30 and agent.gate.state_dim == 9
-    policy = BRLPolicy("brl", str(tmp_path / "near" / "model.npz"))
-    state = np.random.default_rng(2).dirichlet(np.ones(30))
-    assert policy.act(np.concatenate([state, [0.0, 0.9, 0.0]]), 2) in range(9)
+    agent = BrakeGatedAgent.load(seed / "model.npz")
+    assert agent.n_actions == 9 and "brake gate" in BRLPolicy("brl", str(seed / "model.npz")).setting
+    # the driver given as its run directory (its own model.npz) trains a gate alone
+    again = TrainConfig(task="navigation", steps=40, seed=0, evaluate=False, actions="fine", traffic=["dense"],
+                        r_hazard=20.0, driver_model=str(seed / "driver"), branch_restart_below=None)
+    train_run(again, tmp_path / "gate_only")
+    assert (tmp_path / "gate_only" / "log.csv").read_bytes() == (seed / "gate" / "log.csv").read_bytes()
     with pytest.raises(BrlInputError, match="ghost_traffic"):
         TrainConfig(task="navigation", ghost_traffic=True)
-    # a gate on the corridor state alone (gate_scale 0): corridor nearness of lane and road, and the speed
-    corridor = replace(near, state="corridor", gate_scale=0.0)
-    train_run(corridor, tmp_path / "corridor")
-    agent = BrakeGatedAgent.load(tmp_path / "corridor" / "model.npz")
-    assert agent.state_dim == 33 and agent.gate.state_dim == 3 and agent.scale == 0.0
-    assert "corridor state" in BRLPolicy("brl", str(tmp_path / "corridor" / "model.npz")).setting
 
 
 def load_navigation_agent_checked(path: Path):
@@ -391,8 +381,6 @@ def load_navigation_agent_checked(path: Path):
     ({"actions": "stop"}, "set actions to one of paper, fine"),
     ({"task": "lane-keeping"}, "--task navigation"),
     ({"brake_gate_steps": -5}, "brake_gate_steps must be an integer >= 0"),
-    ({"gate_scale": -1.0}, "gate_scale must be a number >= 0"),
-    ({"gate_scale": 0}, "0 only with a state option"),
     ({"driver_model": "README.md"}, "is not a navigation model"),
     ({"driver_model": "models/brl_gt/seed_0"}, "is not a navigation model"),
     ({"driver_model": "models/brl_nav/seed_0/member_0/model.npz", "committee": 3}, "drop committee"),

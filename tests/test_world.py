@@ -288,31 +288,6 @@ def test_without_road_user_contact_the_car_drives_through_a_vehicle_it_sees():
     assert any(np.any(f.labels == CarlaClass.VEHICLES) for f in frames)
 
 
-def test_corridor_nearness_sees_a_car_ahead_in_the_lane_and_beside_it_only_in_the_road_corridor(traffic_world):
-    """The corridor state (issue 35, outside the paper): the closest road user straight ahead, from the depth image."""
-    from brlcli.features import CORRIDOR_RANGE_M, corridor_nearness
-
-    w = traffic_world
-    spec = _straight_spec(w.town)
-    w.reset(spec.start)
-    _park_traffic(w)
-    _, labels, depth = w.render(rgb=False)
-    assert corridor_nearness(labels, depth, w.camera).tolist() == [0.0, 0.0]
-    x, y = _ahead(spec.start, 12.0)
-    w.traffic.hold_vehicle(0, x, y, spec.start[2])
-    w.step(Control(), render=False)
-    _, labels, depth = w.render(rgb=False)
-    lane, road = corridor_nearness(labels, depth, w.camera)
-    rear_m = 12.0 - LENGTH_M / 2  # the held car's rear, from the ego car's centre
-    assert lane == road == pytest.approx(1.0 - rear_m / CORRIDOR_RANGE_M, abs=0.06)
-    yaw = math.radians(spec.start[2])  # the same car 2.8 m to the left: beside the lane, in the road corridor
-    w.traffic.hold_vehicle(0, x - 2.8 * math.sin(yaw), y + 2.8 * math.cos(yaw), spec.start[2])
-    w.step(Control(), render=False)
-    _, labels, depth = w.render(rgb=False)
-    lane, road = corridor_nearness(labels, depth, w.camera)
-    assert lane == 0.0 and road > 0.4
-
-
 def test_no_collision_when_standing_still(traffic_world):
     w = traffic_world
     spec = _straight_spec(w.town)

@@ -14,7 +14,6 @@ arrays under `driver.` (its own kind and version inside) and the gate's `Bayesia
 
 from __future__ import annotations
 
-import math
 import os
 from typing import Any
 
@@ -38,12 +37,9 @@ gate stood where nothing was near, and the driver's proposed steering beside the
 (`gate_state`, retired: docs/navigation-study.md section 12.6)."""
 
 
-def gate_features(state: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """The gate's view of an agent state: its road-user entries (GATE_STATE) times `scale` (none when it is 0), and
-    the numbers a state option appends."""
-    if scale == 0:
-        return np.asarray(state[STATE_DIM:])
-    return np.concatenate([scale * state[:STATE_DIM].reshape(N_REGIONS, N_CATEGORIES)[:, DYNAMIC_CATEGORY],
+def gate_features(state: np.ndarray) -> np.ndarray:
+    """The gate's view of an agent state: its road-user entries (GATE_STATE)."""
+    return np.concatenate([state[:STATE_DIM].reshape(N_REGIONS, N_CATEGORIES)[:, DYNAMIC_CATEGORY],
                            state[STATE_DIM:]])
 
 
@@ -51,21 +47,9 @@ class BrakeGatedAgent:
     """A frozen navigation driver and a two-action Bayesian gate (go / stop) that learns when to stop."""
 
     def __init__(self, driver: CommandAgent | CommitteeAgent, gate: BayesianAgent | None = None,
-                 params: BRLParams | None = None, state_dim: int | None = None, scale: float = 1.0) -> None:
+                 params: BRLParams | None = None) -> None:
         self.driver = driver
-        if not (math.isfinite(scale) and scale >= 0):
-            raise ValueError(f"a brake gate's feature scale must be >= 0, got {scale}")
-        self.scale = float(scale)
-        if state_dim is None:  # the gate's state: its road-user entries and the numbers its state option appends
-            shares = N_REGIONS if scale > 0 else 0
-            state_dim = driver.state_dim if gate is None else STATE_DIM + gate.state_dim - shares
-        if state_dim != driver.state_dim and driver.state_dim != STATE_DIM:
-            raise ValueError(f"a gate with a state option of its own needs a driver on the paper's state, got a "
-                             f"driver of state size {driver.state_dim} under a gated state of size {state_dim}")
-        self._state_dim = state_dim
-        dim = len(gate_features(np.zeros(state_dim), scale))
-        if dim == 0:
-            raise ValueError("a brake gate that ignores the road-user shares (scale 0) needs a state option")
+        dim = len(gate_features(np.zeros(driver.state_dim)))
         self.gate = gate if gate is not None else BayesianAgent(dim, 2, params)
         if self.gate.state_dim != dim or self.gate.n_actions != 2:
             raise ValueError(f"a brake gate sees {dim} numbers and has two actions, got {self.gate.state_dim} and "
@@ -74,9 +58,8 @@ class BrakeGatedAgent:
 
     @property
     def state_dim(self) -> int:
-        """Length of the state vector: the driver's, or the paper's 30 and the gate's state option's numbers (the
-        driver then sees the first 30)."""
-        return self._state_dim
+        """Length of the state vector."""
+        return self.driver.state_dim
 
     @property
     def n_actions(self) -> int:
@@ -104,21 +87,20 @@ class BrakeGatedAgent:
 
     def act(self, state: np.ndarray, command: int, rng: np.random.Generator, greedy: bool = False) -> int:
         """The gate's behaviour (or greedy) choice: `stop`, or the driver's greedy action under the command."""
-        if self.gate.act(gate_features(state, self.scale), rng, greedy=greedy) == STOP:
+        if self.gate.act(gate_features(state), rng, greedy=greedy) == STOP:
             return self.stop_action
-        return self.driver.act(state[: self.driver.state_dim], command, self._rng, greedy=True)
+        return self.driver.act(state, command, self._rng, greedy=True)
 
     def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray, command: int,
               next_command: int) -> LearnStep:
         """One step of Algorithm 1 in the gate on (s_t, go or stop, r_t, s_{t+1}); the driver stays frozen."""
-        return self.gate.learn(gate_features(state, self.scale), STOP if action == self.stop_action else GO, reward,
-                               gate_features(next_state, self.scale))
+        return self.gate.learn(gate_features(state), STOP if action == self.stop_action else GO, reward,
+                               gate_features(next_state))
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Format version, kind, the driver's arrays under `driver.` and the gate's under `gate.`."""
         arrays: dict[str, np.ndarray] = {"format_version": np.array(GATED_FORMAT_VERSION, dtype=np.int64),
-                                         "kind": np.array(GATED_KIND), "gate_state": np.array(GATE_STATE),
-                                         "gate_scale": np.array(self.scale)}
+                                         "kind": np.array(GATED_KIND), "gate_state": np.array(GATE_STATE)}
         arrays.update({f"driver.{k}": v for k, v in self.driver.to_arrays().items()})
         arrays.update({f"gate.{k}": v for k, v in self.gate.to_arrays().items()})
         return arrays
@@ -149,10 +131,12 @@ class BrakeGatedAgent:
         if gate_state != GATE_STATE:
             raise BrlInputError(f"model file {path} has a gate on the '{gate_state}' state: "
                                 f"{retired_message('gate_state', RETIRED_CONFIG['gate_state'])}")
+        if "gate_scale" in npz.files and float(npz["gate_scale"]) != 1.0:
+            raise BrlInputError(f"model file {path} has a gate on scaled road-user shares: "
+                                f"{retired_message('gate_scale', RETIRED_CONFIG['gate_scale'])}")
         driver = driver_from_npz(Prefixed(npz, "driver."), f"{path} (driver)")
         gate = BayesianAgent._from_npz(Prefixed(npz, "gate."), f"{path} (gate)")
         try:
-            scale = float(npz["gate_scale"]) if "gate_scale" in npz.files else 1.0  # files before it: 1
-            return cls(driver, gate, scale=scale)
+            return cls(driver, gate)
         except ValueError as exc:
             raise BrlInputError(f"model file {path}: {exc}") from None

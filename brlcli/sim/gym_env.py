@@ -169,8 +169,7 @@ class DrivingEnv(gym.Env):
     def _observe(self, frame: Any) -> np.ndarray:
         self._rgb = frame.rgb
         labels = frame.labels if self.labeler is None else self.labeler(frame.rgb)
-        self._state = agent_state(labels, frame.depth, self.state_option, frame.measurements.forward_speed_kmh,
-                                  self.world.camera)
+        self._state = agent_state(labels, frame.depth, self.state_option, frame.measurements.forward_speed_kmh)
         return self._state.astype(np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
