@@ -60,14 +60,10 @@ def state_vector(labels: np.ndarray) -> np.ndarray:
 
 NEARNESS_RANGE_M = 30.0
 """Depth (m) beyond which a road user adds nothing to the nearness state (outside the paper)."""
-STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1, "motion": N_REGIONS}
+STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1}
 """Agent state options (issue 35): the paper's 30 numbers; or those and 3 nearness numbers from the camera's depth
 image (`depth_nearness`), or and the measured forward speed (clip(v / SPEED_SCALE_KMH, 0, 1), so that standing still
-and driving are different states), or and the change of the six road-user shares since the previous decision
-(`road_user_motion`: a road user entering the view or coming closer grows its share, one waiting does not); all
-outside the paper. Value: how many numbers the option adds."""
-MOTION_SCALE = 10.0
-"""The motion option's change of the road-user shares is multiplied by this (the shares are 0-5 % of the state)."""
+and driving are different states); both outside the paper. Value: how many numbers the option adds."""
 SPEED_SCALE_KMH = 30.0
 
 
@@ -82,25 +78,12 @@ def depth_nearness(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
     return np.array([near[:, :c1].max(initial=0.0), near[:, c1:c2].max(initial=0.0), near[:, c2:].max(initial=0.0)])
 
 
-def road_user_motion(state: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
-    """MOTION_SCALE times the change of the six road-user (dynamic-object) shares from the `previous` decision's
-    30-vector to this one's (zeros at an episode's first decision, `previous` None); outside the paper."""
-    if previous is None:
-        return np.zeros(N_REGIONS)
-    now = np.asarray(state[:STATE_DIM]).reshape(N_REGIONS, N_CATEGORIES)[:, DYNAMIC_CATEGORY]
-    before = np.asarray(previous[:STATE_DIM]).reshape(N_REGIONS, N_CATEGORIES)[:, DYNAMIC_CATEGORY]
-    return MOTION_SCALE * (now - before)
-
-
 def agent_state(labels: np.ndarray, depth: np.ndarray | None, option: str = "paper",
-                speed_kmh: float = 0.0, previous: np.ndarray | None = None) -> np.ndarray:
-    """The agent's state under a state option (STATE_OPTIONS): the 30-vector, with the option's numbers appended
-    (`previous`: the previous decision's state, for the motion option; None at an episode's first decision)."""
+                speed_kmh: float = 0.0) -> np.ndarray:
+    """The agent's state under a state option (STATE_OPTIONS): the 30-vector, with the option's numbers appended."""
     state = state_vector(labels)
     if option == "paper":
         return state
-    if option == "motion":
-        return np.concatenate([state, road_user_motion(state, previous)])
     if option == "speed":
         return np.append(state, min(max(speed_kmh / SPEED_SCALE_KMH, 0.0), 1.0))
     if depth is None:

@@ -142,15 +142,13 @@ class StatePolicy:
         return self.labeler is not None
 
     def reset(self, spec: EpisodeSpec, world: Any) -> None:
-        """Greedy state policy: forget the previous decision's state (the motion state option)."""
-        self._previous: np.ndarray | None = None
+        """Greedy state policy: nothing to reset."""
 
     def decide(self, obs: Observation) -> Control:
         """The action primitive chosen on the (ground-truth or estimated) label image's state."""
         labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
         speed = obs.measurements.forward_speed_kmh if self.state_option == "speed" else 0.0
-        state = agent_state(labels, obs.depth, self.state_option, speed, getattr(self, "_previous", None))
-        self._previous = state
+        state = agent_state(labels, obs.depth, self.state_option, speed)
         if self.uses_command:
             return self.actions[int(self.act(state, obs.command))]
         return self.actions[int(self.act(state))]

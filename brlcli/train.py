@@ -138,11 +138,10 @@ def _new_gate(cfg: TrainConfig, dim: int, n_actions: int) -> Learner:
     driver = load_navigation_agent(cfg.driver_model)  # type: ignore[arg-type]
     if not isinstance(driver, CommandAgent | CommitteeAgent):
         raise BrlInputError(f"driver_model {cfg.driver_model} is already brake-gated; give its driver")
-    if driver.state_dim not in (dim, STATE_DIM) or driver.n_actions != n_actions:
+    if (driver.state_dim, driver.n_actions) != (dim, n_actions):
         raise BrlInputError(f"driver_model {cfg.driver_model} has state size {driver.state_dim} and {driver.n_actions} "
-                            f"actions, but state '{cfg.state}' and actions '{cfg.actions}' need {dim} (or the paper's "
-                            f"{STATE_DIM}: the gate alone then sees the option's numbers) and {n_actions}")
-    return BrakeGatedAgent(driver, params=cfg.agent_params(), state_dim=dim)  # type: ignore[return-value]
+                            f"actions, but state '{cfg.state}' and actions '{cfg.actions}' need {dim} and {n_actions}")
+    return BrakeGatedAgent(driver, params=cfg.agent_params())  # type: ignore[return-value]
 
 
 def load_learner(cfg: TrainConfig, path: Path) -> Learner:

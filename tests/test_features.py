@@ -71,18 +71,3 @@ def test_road_view_penalty_below_half_road() -> None:
     t = reward_terms(False, 0, 0, 25.0, state)
     assert t["road_view"] == pytest.approx(20 * (0.3 - 1))
 
-
-def test_the_motion_option_appends_the_scaled_change_of_the_road_user_shares() -> None:
-    """Outside the paper (issue 35): a brake gate's view of road users entering the image or coming closer."""
-    from brlcli.features import DYNAMIC_CATEGORY, MOTION_SCALE, N_CATEGORIES, agent_state
-
-    labels = np.zeros((88, 200), np.uint8)
-    labels[:, :] = CarlaClass.ROADS
-    first = agent_state(labels, None, "motion")
-    assert first.shape == (36,) and not first[30:].any()  # an episode's first decision: no previous state
-    labels[60:, 80:120] = CarlaClass.VEHICLES  # a car appears in the bottom-middle region
-    second = agent_state(labels, None, "motion", previous=first)
-    bottom_middle = 4 * N_CATEGORIES + DYNAMIC_CATEGORY
-    assert second[30 + 4] == pytest.approx(MOTION_SCALE * (second[bottom_middle] - first[bottom_middle]))
-    assert second[30 + 4] > 0 and np.count_nonzero(second[30:]) == 1
-    assert np.array_equal(agent_state(labels, None, "motion", previous=second)[30:], np.zeros(6))  # it waits

@@ -362,14 +362,6 @@ def test_a_ghost_traffic_driver_trains_among_road_users_and_its_gate_in_real_tra
                         r_hazard=20.0, driver_model=str(seed / "driver"), branch_restart_below=None)
     train_run(again, tmp_path / "gate_only")
     assert (tmp_path / "gate_only" / "log.csv").read_bytes() == (seed / "gate" / "log.csv").read_bytes()
-    # a gate with the motion state over the paper-state driver: the gate sees 12 numbers, the driver the first 30
-    motion = TrainConfig(task="navigation", steps=40, seed=0, evaluate=False, actions="fine", traffic=["dense"],
-                         r_hazard=20.0, state="motion", driver_model=str(seed / "driver"), branch_restart_below=None)
-    train_run(motion, tmp_path / "motion")
-    gated = BrakeGatedAgent.load(tmp_path / "motion" / "model.npz")
-    assert gated.state_dim == 36 and gated.driver.state_dim == 30 and gated.gate.state_dim == 12
-    policy = BRLPolicy("brl", str(tmp_path / "motion" / "model.npz"))
-    assert "motion state" in policy.setting
     with pytest.raises(BrlInputError, match="ghost_traffic"):
         TrainConfig(task="navigation", ghost_traffic=True)
 

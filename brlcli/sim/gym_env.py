@@ -169,10 +169,7 @@ class DrivingEnv(gym.Env):
     def _observe(self, frame: Any) -> np.ndarray:
         self._rgb = frame.rgb
         labels = frame.labels if self.labeler is None else self.labeler(frame.rgb)
-        previous = getattr(self, "_state", None) if self._decisions else None
-        self._state = agent_state(labels, frame.depth, self.state_option, frame.measurements.forward_speed_kmh,
-                                  previous)
-        self._decisions += 1
+        self._state = agent_state(labels, frame.depth, self.state_option, frame.measurements.forward_speed_kmh)
         return self._state.astype(np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
@@ -202,7 +199,6 @@ class DrivingEnv(gym.Env):
             yaw = np.radians(start[2])
             start = (start[0] - lateral * np.sin(yaw), start[1] + lateral * np.cos(yaw), start[2] + dyaw)
         frame = self.world.reset(start, seed=int(self.np_random.integers(2**31)))
-        self._decisions = 0  # the motion state option has no previous decision at an episode's start
         self._collision_total = 0.0
         self._road_user_total = 0.0
         self._stuck_s = 0.0
