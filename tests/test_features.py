@@ -70,4 +70,3 @@ def test_road_view_penalty_below_half_road() -> None:
     state[2::5] = 0.7 / 6
     t = reward_terms(False, 0, 0, 25.0, state)
     assert t["road_view"] == pytest.approx(20 * (0.3 - 1))
-
