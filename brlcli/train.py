@@ -141,7 +141,7 @@ def _new_gate(cfg: TrainConfig, dim: int, n_actions: int) -> Learner:
     if (driver.state_dim, driver.n_actions) != (dim, n_actions):
         raise BrlInputError(f"driver_model {cfg.driver_model} has state size {driver.state_dim} and {driver.n_actions} "
                             f"actions, but state '{cfg.state}' and actions '{cfg.actions}' need {dim} and {n_actions}")
-    return BrakeGatedAgent(driver, params=cfg.agent_params(), branches=cfg.gate_branches)  # type: ignore[return-value]
+    return BrakeGatedAgent(driver, params=cfg.agent_params())  # type: ignore[return-value]
 
 
 def load_learner(cfg: TrainConfig, path: Path) -> Learner:

@@ -126,7 +126,6 @@ class TrainConfig:
     # roads, a brake gate (`brlcli.agent.gate`: go or stop) learns this many steps in `traffic` with the hazard reward
     ghost_traffic: bool = False  # outside the paper: with `traffic`, the car passes through road users (seen, moving,
     # braking for it; no contact, no crash); a brake gate's driver then trains among them, the gate in real traffic
-    gate_branches: bool = False  # outside the paper: a brake gate per route command (follow, left, right, straight)
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
     # driver/model.npz; or an existing navigation model.npz or member set, then only the gate is trained)
 
@@ -186,8 +185,6 @@ class TrainConfig:
         if isinstance(self.brake_gate_steps, bool) or not isinstance(self.brake_gate_steps, int) or \
                 self.brake_gate_steps < 0:
             raise BrlInputError(f"brake_gate_steps must be an integer >= 0, got {self.brake_gate_steps!r}")
-        if not isinstance(self.gate_branches, bool):
-            raise BrlInputError(f"gate_branches is true or false, got {self.gate_branches!r}")
         if not gated:
             return
         if self.task != "navigation" or not self.traffic or not self.r_hazard:

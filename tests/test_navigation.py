@@ -366,31 +366,6 @@ def test_a_ghost_traffic_driver_trains_among_road_users_and_its_gate_in_real_tra
         TrainConfig(task="navigation", ghost_traffic=True)
 
 
-def test_a_brake_gate_per_route_command_learns_in_the_commands_branch(tmp_path: Path) -> None:
-    import csv
-
-    from brlcli.agent.gate import BrakeGatedAgent
-    from brlcli.policy import BRLPolicy
-
-    cfg = TrainConfig(task="navigation", steps=120, seed=0, evaluate=False, actions="fine", traffic=["regular"],
-                      r_hazard=20.0, driver_model="models/brl_nav/seed_0/member_0/model.npz", gate_branches=True,
-                      branch_restart_below=None)
-    with pytest.raises(BrlInputError, match=r"driver_model .* 4 actions"):
-        train_run(cfg, tmp_path / "mismatch")  # the shipped member has the paper's four primitives, not `fine`
-    cfg = TrainConfig(**{**cfg.to_dict(), "actions": "paper", "route_kinds": None})
-    train_run(cfg, tmp_path / "branches")
-    agent = BrakeGatedAgent.load(tmp_path / "branches" / "model.npz")
-    assert isinstance(agent.gate, CommandAgent) and agent.gate.state_dim == 6 and agent.gate.n_actions == 2
-    rows = list(csv.DictReader(open(tmp_path / "branches" / "log.csv")))
-    commands = {int(r["command"]) for r in rows}
-    learned = {i for i, b in enumerate(agent.gate.branches) if b.visits.sum() > 0}
-    assert learned == {CommandAgent.branch_of(c) for c in commands}  # only the commands' branches learn
-    policy = BRLPolicy("brl", str(tmp_path / "branches" / "model.npz"))
-    assert policy.act(np.full(30, 1 / 30), 2) in range(5)
-    with pytest.raises(BrlInputError, match="gate_branches is true or false"):
-        TrainConfig(**{**cfg.to_dict(), "gate_branches": 1, "route_kinds": None})
-
-
 def load_navigation_agent_checked(path: Path):
     from brlcli.agent.command import load_navigation_agent
     from brlcli.agent.gate import BrakeGatedAgent

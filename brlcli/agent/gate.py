@@ -46,13 +46,11 @@ def gate_features(state: np.ndarray) -> np.ndarray:
 class BrakeGatedAgent:
     """A frozen navigation driver and a two-action Bayesian gate (go / stop) that learns when to stop."""
 
-    def __init__(self, driver: CommandAgent | CommitteeAgent, gate: BayesianAgent | CommandAgent | None = None,
-                 params: BRLParams | None = None, branches: bool = False) -> None:
+    def __init__(self, driver: CommandAgent | CommitteeAgent, gate: BayesianAgent | None = None,
+                 params: BRLParams | None = None) -> None:
         self.driver = driver
         dim = len(gate_features(np.zeros(driver.state_dim)))
-        if gate is None:  # one gate, or one per route command (`gate_branches`, outside the paper)
-            gate = CommandAgent(dim, 2, params) if branches else BayesianAgent(dim, 2, params)
-        self.gate = gate
+        self.gate = gate if gate is not None else BayesianAgent(dim, 2, params)
         if self.gate.state_dim != dim or self.gate.n_actions != 2:
             raise ValueError(f"a brake gate sees {dim} numbers and has two actions, got {self.gate.state_dim} and "
                              f"{self.gate.n_actions}")
@@ -76,34 +74,28 @@ class BrakeGatedAgent:
     @property
     def total_components(self) -> int:
         """The gate's components (the frozen driver's are not learned here)."""
-        return self.gate.total_components if isinstance(self.gate, CommandAgent) else self.gate.n_components
+        return self.gate.n_components
 
     @property
     def components_per_branch(self) -> list[int]:
-        """The gate's components, per command branch or as one branch."""
-        return self.gate.components_per_branch if isinstance(self.gate, CommandAgent) else [self.gate.n_components]
+        """The gate's components, as one branch."""
+        return [self.gate.n_components]
 
     def branch(self, command: int) -> BayesianAgent:
-        """The learning agent under a command: the gate (or its branch of the command)."""
-        return self.gate.branch(command) if isinstance(self.gate, CommandAgent) else self.gate
+        """The learning agent, whatever the command: the gate."""
+        return self.gate
 
     def act(self, state: np.ndarray, command: int, rng: np.random.Generator, greedy: bool = False) -> int:
         """The gate's behaviour (or greedy) choice: `stop`, or the driver's greedy action under the command."""
-        features = gate_features(state)
-        stop = (self.gate.act(features, command, rng, greedy=greedy) if isinstance(self.gate, CommandAgent)
-                else self.gate.act(features, rng, greedy=greedy)) == STOP
-        if stop:
+        if self.gate.act(gate_features(state), rng, greedy=greedy) == STOP:
             return self.stop_action
         return self.driver.act(state, command, self._rng, greedy=True)
 
     def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray, command: int,
               next_command: int) -> LearnStep:
         """One step of Algorithm 1 in the gate on (s_t, go or stop, r_t, s_{t+1}); the driver stays frozen."""
-        gate_action = STOP if action == self.stop_action else GO
-        if isinstance(self.gate, CommandAgent):
-            return self.gate.learn(gate_features(state), gate_action, reward, gate_features(next_state), command,
-                                   next_command)
-        return self.gate.learn(gate_features(state), gate_action, reward, gate_features(next_state))
+        return self.gate.learn(gate_features(state), STOP if action == self.stop_action else GO, reward,
+                               gate_features(next_state))
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Format version, kind, the driver's arrays under `driver.` and the gate's under `gate.`."""
@@ -144,8 +136,10 @@ class BrakeGatedAgent:
                                 f"{retired_message('gate_scale', RETIRED_CONFIG['gate_scale'])}")
         driver = driver_from_npz(Prefixed(npz, "driver."), f"{path} (driver)")
         part = Prefixed(npz, "gate.")
-        gate: BayesianAgent | CommandAgent = (CommandAgent._from_npz(part, f"{path} (gate)") if "kind" in part.files
-                                              else BayesianAgent._from_npz(part, f"{path} (gate)"))
+        if "kind" in part.files:  # a gate per route command
+            raise BrlInputError(f"model file {path} has a brake gate per route command: "
+                                f"{retired_message('gate_branches', RETIRED_CONFIG['gate_branches'])}")
+        gate = BayesianAgent._from_npz(part, f"{path} (gate)")
         try:
             return cls(driver, gate)
         except ValueError as exc:
