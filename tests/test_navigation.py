@@ -411,3 +411,21 @@ def test_the_navigation_preset_trains_the_shipped_committee_size() -> None:
     over_driver = resolve_train_config([Layer("--set", {"task": "navigation", "driver_model": "models/brl_nav/seed_0",
                                                         "traffic": ["dense"], "r_hazard": 20.0})])
     assert over_driver.committee == 1  # a gate over a given driver is one agent
+
+
+def test_gate_files_of_retired_knobs_are_refused_in_one_line(tmp_path: Path) -> None:
+    from brlcli.agent.bayes import save_model_arrays
+    from brlcli.agent.gate import BrakeGatedAgent
+
+    gated = BrakeGatedAgent(CommandAgent.load("models/brl_nav/seed_0/member_0/model.npz"))
+    arrays = gated.to_arrays()
+    save_model_arrays(tmp_path / "scaled.npz", {**arrays, "gate_scale": np.array(10.0)})
+    with pytest.raises(BrlInputError, match=r"'gate_scale' was retired.*618b968"):
+        BrakeGatedAgent.load(tmp_path / "scaled.npz")
+    per_command = {k: v for k, v in arrays.items() if not k.startswith("gate.")}
+    per_command.update({f"gate.{k}": v for k, v in CommandAgent(6, 2).to_arrays().items()})
+    save_model_arrays(tmp_path / "branches.npz", per_command)
+    with pytest.raises(BrlInputError, match=r"'gate_branches' was retired.*e082171"):
+        BrakeGatedAgent.load(tmp_path / "branches.npz")
+    save_model_arrays(tmp_path / "plain.npz", {**arrays, "gate_scale": np.array(1.0)})
+    assert BrakeGatedAgent.load(tmp_path / "plain.npz").gate.state_dim == 6
