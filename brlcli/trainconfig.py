@@ -196,6 +196,10 @@ class TrainConfig:
         if self.driver_model is not None:
             from brlcli.agent.command import is_command_model
 
+            if self.ghost_traffic:
+                raise BrlInputError("a brake gate learns in real traffic: drop ghost_traffic when giving driver_model "
+                                    "(ghost_traffic with brake_gate_steps trains the driver among ghost road users)")
+
             if self.committee > 1:
                 raise BrlInputError("a run over an existing driver_model trains one brake gate; drop committee")
             if not is_command_model(self.driver_model):

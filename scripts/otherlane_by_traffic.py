@@ -4,7 +4,7 @@
 
 For each member run under the directory (member_<k>/log.csv, or the directory's own log.csv) and each traffic level
 of its episodes, the share of the learning steps in the last 1/PART of the run whose car is partly in the opposite
-lane (intersection_otherlane > 0), the share of steps in crash-ended episodes and the mean reward per step. A driver
+lane (intersection_otherlane > 0), the crashes per 1,000 steps and the mean reward per step. A driver
 that weaves only when road users are in view shows a higher share in regular and dense than in empty. Outside the
 paper.
 """

@@ -384,6 +384,7 @@ def load_navigation_agent_checked(path: Path):
     ({"driver_model": "README.md"}, "is not a navigation model"),
     ({"driver_model": "models/brl_gt/seed_0"}, "is not a navigation model"),
     ({"driver_model": "models/brl_nav/seed_0/member_0/model.npz", "committee": 3}, "drop committee"),
+    ({"driver_model": "models/brl_nav/seed_0", "ghost_traffic": True}, "drop ghost_traffic"),
 ])
 def test_brake_gate_options_are_checked_in_one_line(overrides: dict, message: str) -> None:
     base = {"task": "navigation", "brake_gate_steps": 100, "traffic": ["regular"], "r_hazard": 20.0}

@@ -110,7 +110,7 @@ class DrivingEnv(gym.Env):
                             for t in dict.fromkeys(traffic)}
         else:
             self._worlds = {"": World(town, weather=weather, vehicles=vehicles, pedestrians=pedestrians,
-                                      camera=camera)}
+                                      camera=camera, road_user_contact=road_user_contact)}
         self.world = next(iter(self._worlds.values()))
         self.traffic_level = next(iter(self._worlds))
         if routes == "navigation":
