@@ -78,9 +78,9 @@ class PolicySpec:
 def _training_config(model_path: Path) -> dict[str, Any]:
     """The training configuration in the config.json beside a BRL model, or a member set's first member's ({} without
     one)."""
-    from brlcli.agent.committee import committee_members
+    from brlcli.agent.committee import committee_members, model_file
 
-    cfg = (committee_members(model_path) or [Path(model_path)])[0].parent / "config.json"
+    cfg = (committee_members(model_path) or [Path(model_file(model_path))])[0].parent / "config.json"
     if not cfg.exists():
         return {}
     try:
@@ -105,6 +105,11 @@ def model_task(model_path: Path) -> str:
 def model_variant(model_path: Path) -> str:
     """The method variant a BRL model was trained with (its config.json's `variant`; 'paper' without one)."""
     return str(_training_config(model_path).get("variant", "paper"))
+
+
+def model_state_option(model_path: Path) -> str:
+    """The state option a BRL model was trained with (its config.json's `state`; 'paper' without one)."""
+    return str(_training_config(model_path).get("state", "paper"))
 
 
 def model_camera(model_path: Path) -> CameraConfig | None:
@@ -135,6 +140,12 @@ class StatePolicy:
         self.actions = ACTION_SETS[actions]
         self.state_option = state
         self.needs_depth = state == "nearness"
+        self._path_view: Any = None  # the path state option's planner (brlcli.pathview)
+        if state == "path":
+            from brlcli.pathview import PathView
+
+            self._path_view = PathView(self.frames_per_decision)
+        self._held: Control | None = None
 
     @property
     def needs_rgb(self) -> bool:
@@ -142,16 +153,25 @@ class StatePolicy:
         return self.labeler is not None
 
     def reset(self, spec: EpisodeSpec, world: Any) -> None:
-        """Greedy state policy: nothing to reset."""
+        """Greedy state policy: only the path state option's planner starts afresh."""
+        self._held = None
+        if self._path_view is not None:
+            self._path_view.reset(world)
 
     def decide(self, obs: Observation) -> Control:
         """The action primitive chosen on the (ground-truth or estimated) label image's state."""
         labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
         speed = obs.measurements.forward_speed_kmh if self.state_option == "speed" else 0.0
-        state = agent_state(labels, obs.depth, self.state_option, speed)
+        near = 0.0
+        if self._path_view is not None:
+            near = self._path_view.update(labels, obs.measurements.forward_speed_kmh, obs.command, self._held)
+        state = agent_state(labels, obs.depth, self.state_option, speed, near)
         if self.uses_command:
-            return self.actions[int(self.act(state, obs.command))]
-        return self.actions[int(self.act(state))]
+            control = self.actions[int(self.act(state, obs.command))]
+        else:
+            control = self.actions[int(self.act(state))]
+        self._held = control
+        return control
 
 
 def greedy_brl(agent: Any) -> Callable[[np.ndarray], int]:

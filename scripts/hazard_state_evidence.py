@@ -1,16 +1,18 @@
 """Issue 35's evidence: can the paper's 30-number state tell a near hazard from a far one, and what is the smallest
 addition that can?
 
-    python scripts/hazard_state_evidence.py [--episodes 40] [--workers 2] [--out runs/s35/hazard_evidence.json]
+    python scripts/hazard_state_evidence.py [--episodes 40] [--workers 2] [--gap 2s|now] [--out FILE.json]
 
 The privileged autopilot drives town01 in NoCrash Regular and Dense traffic (alternating), from seeded spawn-pose
 pairs (routes >= 200 m), for up to 90 s; at every decision (7 frames) it records the ground-truth 30-number state,
 the expert's hazard gap (free distance to the nearest road user on its route corridor, predicted 0-2 s ahead:
 `Autopilot._obstacle_gap`) and candidate additions from the depth image the camera renders: the nearness
 clip(1 - d / 30 m, 0, 1) of the closest vehicle or pedestrian pixel in the image's middle column (1 number) or in
-each of its three columns (3 numbers). A class-balanced logistic regression (L2, scipy) fitted on the even episodes
-predicts "a hazard within 8 m" (the expert stops below 7 m) on the odd ones; the script prints its ROC AUC and
-balanced accuracy for each feature set.
+each of its three columns (3 numbers); and the path nearness of the `path` state option (`brlcli.pathview`: the
+modular pipeline's planner run at the decisions on the label image, the speed, the route command and the control
+held since the previous decision). A class-balanced logistic regression (L2, scipy) fitted on the even episodes
+predicts "a hazard within 8 m" (the expert stops below 7 m; `--gap now`: with road users where they are now, the
+hazard reward's default) on the odd ones; the script prints its ROC AUC and balanced accuracy for each feature set.
 """
 
 from __future__ import annotations
@@ -29,10 +31,12 @@ from scipy.stats import rankdata
 
 from brlcli.autopilot import Autopilot
 from brlcli.bench.suites import NOCRASH_TRAFFIC
-from brlcli.features import depth_nearness, state_vector
+from brlcli.features import DYNAMIC_CATEGORY, N_CATEGORIES, N_REGIONS, depth_nearness, state_vector
+from brlcli.pathview import PathView
 from brlcli.provenance import atomic_write_json
 from brlcli.sim import World
 from brlcli.sim.gym_env import FRAMES_PER_DECISION
+from brlcli.sim.hazard import hazard_gap_m
 
 NEAR_M = 8.0
 
@@ -50,21 +54,35 @@ def _episode(seed: int) -> dict[str, list]:
             break
     frame = world.reset(tuple(poses[a]), seed=seed)
     pilot = Autopilot(world, route, np.random.default_rng(seed), noise=None)
-    rows: dict[str, list] = {"state": [], "gap": [], "depth": [], "speed": []}
+    view = PathView(FRAMES_PER_DECISION)
+    view.reset(world)
+    rows: dict[str, list] = {"state": [], "gap": [], "gap_now": [], "depth": [], "speed": [], "path": []}
+    held = None
     for i in range(900):
         m = frame.measurements
+        control = pilot.expert(m)
         if i % FRAMES_PER_DECISION == 0:
             _, labels, depth = world.render(rgb=False)
             rows["state"].append(state_vector(labels).tolist())
             rows["depth"].append(depth_nearness(labels, depth).tolist())
             gap = pilot._obstacle_gap(m)
             rows["gap"].append(gap if math.isfinite(gap) else 1e3)
+            gap = hazard_gap_m(world.traffic, route, m.x, m.y, m.yaw_deg, predict_s=(0.0,))
+            rows["gap_now"].append(gap if math.isfinite(gap) else 1e3)
             rows["speed"].append(m.forward_speed_kmh)
-        frame = world.step(pilot.expert(m), render=False)
+            command = int(route.command_at(route.project(m.x, m.y)[0]))
+            rows["path"].append(view.update(labels, m.forward_speed_kmh, command, held))
+            held = control  # the expert's control of this frame stands for the held control (it changes per frame)
+        frame = world.step(control, render=False)
         if math.hypot(frame.measurements.x - route.points[-1][0], frame.measurements.y - route.points[-1][1]) < 2.0:
             break
     world.close()
     return rows
+
+
+def _road_users(state: np.ndarray) -> np.ndarray:
+    """The six road-user (dynamic-object) shares of 30-number states."""
+    return state.reshape(-1, N_REGIONS, N_CATEGORIES)[:, :, DYNAMIC_CATEGORY]
 
 
 def _fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> np.ndarray:
@@ -105,6 +123,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=40)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--gap", choices=("2s", "now"), default="2s",
+                    help="the label's road users: predicted 0-2 s ahead (the expert's) or where they are now")
     ap.add_argument("--out", default=None, help="JSON file of the figures")
     args = ap.parse_args()
     with ProcessPoolExecutor(args.workers) as pool:
@@ -115,15 +135,22 @@ def main() -> None:
     for part, eps in split.items():
         state = np.concatenate([np.array(e["state"]) for e in eps])
         depth = np.concatenate([np.array(e["depth"]) for e in eps])
-        gap = np.concatenate([np.array(e["gap"]) for e in eps])
+        path = np.concatenate([np.array(e["path"]) for e in eps])
+        depth = np.column_stack([depth, path])
+        gap = np.concatenate([np.array(e["gap" if args.gap == "2s" else "gap_now"]) for e in eps])
         data[part] = (state, depth, (gap < NEAR_M).astype(float))
     sets = {
         "30-number state": lambda s, d: s,
         "30-number state + middle-column nearness (31)": lambda s, d: np.column_stack([s, d[:, 1]]),
-        "30-number state + three column nearnesses (33)": lambda s, d: np.column_stack([s, d]),
+        "30-number state + three column nearnesses (33)": lambda s, d: np.column_stack([s, d[:, :3]]),
         "middle-column nearness alone (1)": lambda s, d: d[:, 1:2],
+        "the six road-user shares (6, the gate's view)": lambda s, d: _road_users(s),
+        "path nearness alone (1)": lambda s, d: d[:, 3:4],
+        "30-number state + path nearness (31)": lambda s, d: np.column_stack([s, d[:, 3]]),
+        "six road-user shares + path nearness (7, the gate's path view)":
+            lambda s, d: np.column_stack([_road_users(s), d[:, 3]]),
     }
-    out = {"decisions_fit": len(data["fit"][2]), "decisions_test": len(data["test"][2]),
+    out = {"gap": args.gap, "decisions_fit": len(data["fit"][2]), "decisions_test": len(data["test"][2]),
            "near_share_test": float(data["test"][2].mean()), "sets": {}}
     print(f"{out['decisions_fit']} decisions to fit, {out['decisions_test']} to test; "
           f"{out['near_share_test']:.1%} of the test decisions have a hazard within {NEAR_M:g} m")

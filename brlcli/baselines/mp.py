@@ -311,6 +311,7 @@ class ModularPipelinePolicy:
         self.speed_int = 0.0
         self.lane: LaneEstimate | None = None
         self.lane_lost_frames = 0
+        self.last_gap_m = math.inf  # the hazard gap of the last decision (read by brlcli.pathview)
 
     def reset(self, spec: EpisodeSpec, world: Any) -> None:
         """New episode: take the camera configuration (nothing else) from the world and clear the planner."""
@@ -466,6 +467,7 @@ class ModularPipelinePolicy:
             if command == Command.REACH_GOAL:
                 target_kmh = TURN_KMH
         gap = self._hazard_gap(grid, path_car)
+        self.last_gap_m = gap
         if gap < STOP_GAP_M:
             target_kmh = 0.0
         elif gap < SLOW_GAP_M:
