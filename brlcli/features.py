@@ -60,7 +60,9 @@ def state_vector(labels: np.ndarray) -> np.ndarray:
 
 NEARNESS_RANGE_M = 30.0
 """Depth (m) beyond which a road user adds nothing to the nearness state (outside the paper)."""
-STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1, "path": 1}
+import os as _os  # PROBE
+
+STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1, "path": 2 if _os.environ.get("BRL_PATH_EXTRA") else 1}
 """Agent state options (issue 35): the paper's 30 numbers; or those and 3 nearness numbers from the camera's depth
 image (`depth_nearness`), or and the measured forward speed (clip(v / SPEED_SCALE_KMH, 0, 1), so that standing still
 and driving are different states), or and the nearness of the nearest road user on the car's planned path

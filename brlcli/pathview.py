@@ -53,7 +53,31 @@ class PathView:
                     mp.entry_m -= speed_ms * FRAME_DT_S
         obs = SimpleNamespace(labels=labels, rgb=None, command=int(command),
                               measurements=SimpleNamespace(forward_speed_kmh=float(speed_kmh)))
+        import os
+        extra = os.environ.get("BRL_PATH_EXTRA")  # PROBE
+        if extra == "junction":
+            seen: dict = {}
+            orig = mp._hazard_gap
+
+            def rec(grid, path_car):
+                seen["grid"], seen["path"] = grid, path_car
+                return orig(grid, path_car)
+            mp._hazard_gap = rec
+            mp.decide(obs)  # type: ignore[arg-type]
+            mp._hazard_gap = orig
+            wide = math.inf
+            if mp.manoeuvre is not None or mp.entry_m is not None:
+                from brlcli.baselines import mp as mpmod
+                keep = mpmod.CORRIDOR_HALF_M
+                mpmod.CORRIDOR_HALF_M = 5.0
+                try:
+                    wide = orig(seen["grid"], seen["path"])
+                finally:
+                    mpmod.CORRIDOR_HALF_M = keep
+            return np.array([path_nearness(mp.last_gap_m), path_nearness(wide)])
         mp.decide(obs)  # type: ignore[arg-type]
+        if extra == "speed":
+            return np.array([path_nearness(mp.last_gap_m), min(max(speed_kmh / 30.0, 0.0), 1.0)])
         return path_nearness(mp.last_gap_m)
 
 

@@ -28,6 +28,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from brlcli.agent.command import load_navigation_agent
+from brlcli.policy import model_state_option
 from brlcli.provenance import atomic_write_json
 from brlcli.sim.gym_env import ACTION_SETS
 from brlcli.train import make_env
@@ -40,8 +41,9 @@ def _episodes(job: tuple[str, str, list[int]]) -> list[dict]:
     model_path, level, seeds = job
     agent = load_navigation_agent(model_path)
     actions = next(name for name, primitives in ACTION_SETS.items() if len(primitives) == agent.n_actions)
-    env = make_env(TrainConfig(task="navigation", traffic=[level], r_hazard=20.0, actions=actions))  # the hazard
-    # reward only records the gap
+    state = model_state_option(Path(model_path))  # the state option the model was trained with
+    env = make_env(TrainConfig(task="navigation", traffic=[level], r_hazard=20.0, actions=actions,
+                               state=state))  # the hazard reward only records the gap
     rng = np.random.default_rng(0)  # greedy acting draws nothing
     out = []
     for seed in seeds:

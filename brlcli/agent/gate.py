@@ -39,6 +39,8 @@ gate stood where nothing was near, and the driver's proposed steering beside the
 
 def gate_features(state: np.ndarray) -> np.ndarray:
     """The gate's view of an agent state: its road-user entries (GATE_STATE)."""
+    if os.environ.get("BRL_GATE_OPTION_ONLY"):  # PROBE (not to be committed): only the state option's numbers
+        return np.asarray(state[STATE_DIM:])
     return np.concatenate([state[:STATE_DIM].reshape(N_REGIONS, N_CATEGORIES)[:, DYNAMIC_CATEGORY],
                            state[STATE_DIM:]])
 
@@ -50,7 +52,8 @@ class BrakeGatedAgent:
                  params: BRLParams | None = None, state_dim: int | None = None) -> None:
         self.driver = driver
         if state_dim is None:  # the gate's state: its road-user entries and the numbers its state option appends
-            state_dim = driver.state_dim if gate is None else STATE_DIM + gate.state_dim - N_REGIONS
+            state_dim = driver.state_dim if gate is None else STATE_DIM + gate.state_dim - (
+                0 if os.environ.get("BRL_GATE_OPTION_ONLY") else N_REGIONS)
         if state_dim != driver.state_dim and driver.state_dim != STATE_DIM:
             raise ValueError(f"a gate with a state option of its own needs a driver on the paper's state, got a "
                              f"driver of state size {driver.state_dim} under a gated state of size {state_dim}")
