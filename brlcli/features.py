@@ -60,14 +60,10 @@ def state_vector(labels: np.ndarray) -> np.ndarray:
 
 NEARNESS_RANGE_M = 30.0
 """Depth (m) beyond which a road user adds nothing to the nearness state (outside the paper)."""
-import os as _os  # PROBE
-
-STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1, "path": 2 if _os.environ.get("BRL_PATH_EXTRA") else 1}
+STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1}
 """Agent state options (issue 35): the paper's 30 numbers; or those and 3 nearness numbers from the camera's depth
 image (`depth_nearness`), or and the measured forward speed (clip(v / SPEED_SCALE_KMH, 0, 1), so that standing still
-and driving are different states), or and the nearness of the nearest road user on the car's planned path
-(`brlcli.pathview`; a brake gate may see it over a driver on the paper's state); all outside the paper. Value: how
-many numbers the option adds."""
+and driving are different states); both outside the paper. Value: how many numbers the option adds."""
 SPEED_SCALE_KMH = 30.0
 
 
@@ -83,14 +79,11 @@ def depth_nearness(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
 
 
 def agent_state(labels: np.ndarray, depth: np.ndarray | None, option: str = "paper",
-                speed_kmh: float = 0.0, path_nearness: float = 0.0) -> np.ndarray:
-    """The agent's state under a state option (STATE_OPTIONS): the 30-vector, with the option's numbers appended
-    (`path_nearness`: the path option's number, from `brlcli.pathview.PathView`)."""
+                speed_kmh: float = 0.0) -> np.ndarray:
+    """The agent's state under a state option (STATE_OPTIONS): the 30-vector, with the option's numbers appended."""
     state = state_vector(labels)
     if option == "paper":
         return state
-    if option == "path":
-        return np.append(state, path_nearness)
     if option == "speed":
         return np.append(state, min(max(speed_kmh / SPEED_SCALE_KMH, 0.0), 1.0))
     if depth is None:

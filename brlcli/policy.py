@@ -140,12 +140,6 @@ class StatePolicy:
         self.actions = ACTION_SETS[actions]
         self.state_option = state
         self.needs_depth = state == "nearness"
-        self._path_view: Any = None  # the path state option's planner (brlcli.pathview)
-        if state == "path":
-            from brlcli.pathview import PathView
-
-            self._path_view = PathView(self.frames_per_decision)
-        self._held: Control | None = None
 
     @property
     def needs_rgb(self) -> bool:
@@ -153,25 +147,16 @@ class StatePolicy:
         return self.labeler is not None
 
     def reset(self, spec: EpisodeSpec, world: Any) -> None:
-        """Greedy state policy: only the path state option's planner starts afresh."""
-        self._held = None
-        if self._path_view is not None:
-            self._path_view.reset(world)
+        """Greedy state policy: nothing to reset."""
 
     def decide(self, obs: Observation) -> Control:
         """The action primitive chosen on the (ground-truth or estimated) label image's state."""
         labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
         speed = obs.measurements.forward_speed_kmh if self.state_option == "speed" else 0.0
-        near = 0.0
-        if self._path_view is not None:
-            near = self._path_view.update(labels, obs.measurements.forward_speed_kmh, obs.command, self._held)
-        state = agent_state(labels, obs.depth, self.state_option, speed, near)
+        state = agent_state(labels, obs.depth, self.state_option, speed)
         if self.uses_command:
-            control = self.actions[int(self.act(state, obs.command))]
-        else:
-            control = self.actions[int(self.act(state))]
-        self._held = control
-        return control
+            return self.actions[int(self.act(state, obs.command))]
+        return self.actions[int(self.act(state))]
 
 
 def greedy_brl(agent: Any) -> Callable[[np.ndarray], int]:

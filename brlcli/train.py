@@ -134,25 +134,19 @@ def _new_gate(cfg: TrainConfig, dim: int, n_actions: int) -> Learner:
     """A fresh brake gate over the run's driver (BrlInputError for a driver of another state size or action set)."""
     from brlcli.agent.gate import BrakeGatedAgent
 
-    driver = _gate_driver(cfg, dim, n_actions)
-    return BrakeGatedAgent(driver, params=cfg.agent_params(), state_dim=dim)  # type: ignore[return-value]
+    return BrakeGatedAgent(_gate_driver(cfg, dim, n_actions), params=cfg.agent_params())  # type: ignore[return-value]
 
 
 def _gate_driver(cfg: TrainConfig, dim: int, n_actions: int) -> Any:
-    """The run's frozen driver (`driver_model`), checked against the run's state option and action set."""
+    """The run's frozen driver (`driver_model`), checked against the run's state size and action set."""
     from brlcli.agent.command import CommandAgent, CommitteeAgent, load_navigation_agent
-    from brlcli.policy import model_state_option
 
     driver = load_navigation_agent(cfg.driver_model)  # type: ignore[arg-type]
     if not isinstance(driver, CommandAgent | CommitteeAgent):
         raise BrlInputError(f"driver_model {cfg.driver_model} is already brake-gated; give its driver")
-    driver_state = model_state_option(Path(cfg.driver_model))  # type: ignore[arg-type]
-    if driver_state not in ("paper", cfg.state) or driver.state_dim not in (dim, STATE_DIM) or \
-            driver.n_actions != n_actions:
-        raise BrlInputError(f"driver_model {cfg.driver_model} has state '{driver_state}' (size {driver.state_dim}) "
-                            f"and {driver.n_actions} actions, but state '{cfg.state}' and actions '{cfg.actions}' "
-                            f"need {dim} (or the paper's state, {STATE_DIM}: the gate alone then sees the option's "
-                            f"numbers) and {n_actions}")
+    if (driver.state_dim, driver.n_actions) != (dim, n_actions):
+        raise BrlInputError(f"driver_model {cfg.driver_model} has state size {driver.state_dim} and {driver.n_actions} "
+                            f"actions, but state '{cfg.state}' and actions '{cfg.actions}' need {dim} and {n_actions}")
     return driver
 
 

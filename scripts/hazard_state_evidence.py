@@ -8,9 +8,7 @@ pairs (routes >= 200 m), for up to 90 s; at every decision (7 frames) it records
 the expert's hazard gap (free distance to the nearest road user on its route corridor, predicted 0-2 s ahead:
 `Autopilot._obstacle_gap`) and candidate additions from the depth image the camera renders: the nearness
 clip(1 - d / 30 m, 0, 1) of the closest vehicle or pedestrian pixel in the image's middle column (1 number) or in
-each of its three columns (3 numbers); and the path nearness of the `path` state option (`brlcli.pathview`: the
-modular pipeline's planner run at the decisions on the label image, the speed, the route command and the control
-held since the previous decision). A class-balanced logistic regression (L2, scipy) fitted on the even episodes
+each of its three columns (3 numbers). A class-balanced logistic regression (L2, scipy) fitted on the even episodes
 predicts "a hazard within 8 m" (the expert stops below 7 m; `--gap now`: with road users where they are now, the
 hazard reward's default) on the odd ones; the script prints its ROC AUC and balanced accuracy for each feature set.
 """
@@ -32,7 +30,6 @@ from scipy.stats import rankdata
 from brlcli.autopilot import Autopilot
 from brlcli.bench.suites import NOCRASH_TRAFFIC
 from brlcli.features import DYNAMIC_CATEGORY, N_CATEGORIES, N_REGIONS, depth_nearness, state_vector
-from brlcli.pathview import PathView
 from brlcli.provenance import atomic_write_json
 from brlcli.sim import World
 from brlcli.sim.gym_env import FRAMES_PER_DECISION
@@ -54,10 +51,7 @@ def _episode(seed: int) -> dict[str, list]:
             break
     frame = world.reset(tuple(poses[a]), seed=seed)
     pilot = Autopilot(world, route, np.random.default_rng(seed), noise=None)
-    view = PathView(FRAMES_PER_DECISION)
-    view.reset(world)
-    rows: dict[str, list] = {"state": [], "gap": [], "gap_now": [], "depth": [], "speed": [], "path": []}
-    held = None
+    rows: dict[str, list] = {"state": [], "gap": [], "gap_now": [], "depth": [], "speed": []}
     for i in range(900):
         m = frame.measurements
         control = pilot.expert(m)
@@ -70,9 +64,6 @@ def _episode(seed: int) -> dict[str, list]:
             gap = hazard_gap_m(world.traffic, route, m.x, m.y, m.yaw_deg, predict_s=(0.0,))
             rows["gap_now"].append(gap if math.isfinite(gap) else 1e3)
             rows["speed"].append(m.forward_speed_kmh)
-            command = int(route.command_at(route.project(m.x, m.y)[0]))
-            rows["path"].append(view.update(labels, m.forward_speed_kmh, command, held))
-            held = control  # the expert's control of this frame stands for the held control (it changes per frame)
         frame = world.step(control, render=False)
         if math.hypot(frame.measurements.x - route.points[-1][0], frame.measurements.y - route.points[-1][1]) < 2.0:
             break
@@ -135,20 +126,14 @@ def main() -> None:
     for part, eps in split.items():
         state = np.concatenate([np.array(e["state"]) for e in eps])
         depth = np.concatenate([np.array(e["depth"]) for e in eps])
-        path = np.concatenate([np.array(e["path"]) for e in eps])
-        depth = np.column_stack([depth, path])
         gap = np.concatenate([np.array(e["gap" if args.gap == "2s" else "gap_now"]) for e in eps])
         data[part] = (state, depth, (gap < NEAR_M).astype(float))
     sets = {
         "30-number state": lambda s, d: s,
         "30-number state + middle-column nearness (31)": lambda s, d: np.column_stack([s, d[:, 1]]),
-        "30-number state + three column nearnesses (33)": lambda s, d: np.column_stack([s, d[:, :3]]),
+        "30-number state + three column nearnesses (33)": lambda s, d: np.column_stack([s, d]),
         "middle-column nearness alone (1)": lambda s, d: d[:, 1:2],
         "the six road-user shares (6, the gate's view)": lambda s, d: _road_users(s),
-        "path nearness alone (1)": lambda s, d: d[:, 3:4],
-        "30-number state + path nearness (31)": lambda s, d: np.column_stack([s, d[:, 3]]),
-        "six road-user shares + path nearness (7, the gate's path view)":
-            lambda s, d: np.column_stack([_road_users(s), d[:, 3]]),
     }
     out = {"gap": args.gap, "decisions_fit": len(data["fit"][2]), "decisions_test": len(data["test"][2]),
            "near_share_test": float(data["test"][2].mean()), "sets": {}}

@@ -432,32 +432,12 @@ def test_gate_files_of_retired_knobs_are_refused_in_one_line(tmp_path: Path) -> 
     assert BrakeGatedAgent.load(tmp_path / "plain.npz").gate.state_dim == 6
 
 
-def test_a_gate_sees_the_path_nearness_over_a_driver_on_the_papers_state(tmp_path: Path) -> None:
-    """state=path (outside the paper): the gate sees the six road-user shares and the path nearness, its driver the
-    paper's 30 numbers."""
-    import csv
 
-    from brlcli.agent.gate import BrakeGatedAgent
-    from brlcli.policy import BRLPolicy
-
-    train_run(TrainConfig(task="navigation", steps=60, seed=0, evaluate=False, actions="fine"), tmp_path / "driver")
-    cfg = TrainConfig(task="navigation", steps=40, seed=0, evaluate=False, actions="fine", traffic=["dense"],
-                      r_hazard=20.0, state="path", driver_model=str(tmp_path / "driver"), branch_restart_below=None)
-    train_run(cfg, tmp_path / "gate")
-    agent = BrakeGatedAgent.load(tmp_path / "gate" / "model.npz")
-    assert agent.state_dim == 31 and agent.gate.state_dim == 7 and agent.driver.state_dim == 30
-    assert len(list(csv.DictReader(open(tmp_path / "gate" / "log.csv")))) == 40
-    policy = BRLPolicy("brl", str(tmp_path / "gate" / "model.npz"))
-    assert "path state" in policy.setting and policy._path_view is not None
-    rng = np.random.default_rng(3)
-    for s in rng.dirichlet(np.ones(30), size=10):
-        state = np.append(s, 0.0)
-        stops = agent.gate.act(np.append(s.reshape(6, 5)[:, 3], 0.0), rng, greedy=True) == 1
-        assert policy.act(state, 2) == (agent.stop_action if stops else agent.driver.act(s, 2, rng, greedy=True))
+def test_a_driver_of_another_state_is_refused_before_anything_is_written(tmp_path: Path) -> None:
     train_run(TrainConfig(task="navigation", steps=20, seed=0, evaluate=False, actions="fine", state="speed"),
               tmp_path / "speed_driver")
-    with pytest.raises(BrlInputError, match=r"state 'speed' \(size 31\)"):  # a speed driver, path gate
+    with pytest.raises(BrlInputError, match=r"state size 31 .* state 'nearness' .* need 33"):
         train_run(TrainConfig(task="navigation", steps=40, seed=0, evaluate=False, actions="fine",
-                              traffic=["dense"], r_hazard=20.0, state="path",
+                              traffic=["dense"], r_hazard=20.0, state="nearness",
                               driver_model=str(tmp_path / "speed_driver")), tmp_path / "bad")
     assert not (tmp_path / "bad").exists()

@@ -39,8 +39,6 @@ gate stood where nothing was near, and the driver's proposed steering beside the
 
 def gate_features(state: np.ndarray) -> np.ndarray:
     """The gate's view of an agent state: its road-user entries (GATE_STATE)."""
-    if os.environ.get("BRL_GATE_OPTION_ONLY"):  # PROBE (not to be committed): only the state option's numbers
-        return np.asarray(state[STATE_DIM:])
     return np.concatenate([state[:STATE_DIM].reshape(N_REGIONS, N_CATEGORIES)[:, DYNAMIC_CATEGORY],
                            state[STATE_DIM:]])
 
@@ -49,16 +47,9 @@ class BrakeGatedAgent:
     """A frozen navigation driver and a two-action Bayesian gate (go / stop) that learns when to stop."""
 
     def __init__(self, driver: CommandAgent | CommitteeAgent, gate: BayesianAgent | None = None,
-                 params: BRLParams | None = None, state_dim: int | None = None) -> None:
+                 params: BRLParams | None = None) -> None:
         self.driver = driver
-        if state_dim is None:  # the gate's state: its road-user entries and the numbers its state option appends
-            state_dim = driver.state_dim if gate is None else STATE_DIM + gate.state_dim - (
-                0 if os.environ.get("BRL_GATE_OPTION_ONLY") else N_REGIONS)
-        if state_dim != driver.state_dim and driver.state_dim != STATE_DIM:
-            raise ValueError(f"a gate with a state option of its own needs a driver on the paper's state, got a "
-                             f"driver of state size {driver.state_dim} under a gated state of size {state_dim}")
-        self._state_dim = state_dim
-        dim = len(gate_features(np.zeros(state_dim)))
+        dim = len(gate_features(np.zeros(driver.state_dim)))
         self.gate = gate if gate is not None else BayesianAgent(dim, 2, params)
         if self.gate.state_dim != dim or self.gate.n_actions != 2:
             raise ValueError(f"a brake gate sees {dim} numbers and has two actions, got {self.gate.state_dim} and "
@@ -67,9 +58,8 @@ class BrakeGatedAgent:
 
     @property
     def state_dim(self) -> int:
-        """Length of the state vector: the driver's, or the paper's 30 and the gate's state option's numbers (the
-        driver then sees the first 30; the path option)."""
-        return self._state_dim
+        """Length of the state vector."""
+        return self.driver.state_dim
 
     @property
     def n_actions(self) -> int:
@@ -99,7 +89,7 @@ class BrakeGatedAgent:
         """The gate's behaviour (or greedy) choice: `stop`, or the driver's greedy action under the command."""
         if self.gate.act(gate_features(state), rng, greedy=greedy) == STOP:
             return self.stop_action
-        return self.driver.act(state[: self.driver.state_dim], command, self._rng, greedy=True)
+        return self.driver.act(state, command, self._rng, greedy=True)
 
     def learn(self, state: np.ndarray, action: int, reward: float, next_state: np.ndarray, command: int,
               next_command: int) -> LearnStep:

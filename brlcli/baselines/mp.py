@@ -311,7 +311,6 @@ class ModularPipelinePolicy:
         self.speed_int = 0.0
         self.lane: LaneEstimate | None = None
         self.lane_lost_frames = 0
-        self.last_gap_m = math.inf  # the hazard gap of the last decision (read by brlcli.pathview)
 
     def reset(self, spec: EpisodeSpec, world: Any) -> None:
         """New episode: take the camera configuration (nothing else) from the world and clear the planner."""
@@ -467,7 +466,6 @@ class ModularPipelinePolicy:
             if command == Command.REACH_GOAL:
                 target_kmh = TURN_KMH
         gap = self._hazard_gap(grid, path_car)
-        self.last_gap_m = gap
         if gap < STOP_GAP_M:
             target_kmh = 0.0
         elif gap < SLOW_GAP_M:

@@ -138,11 +138,6 @@ class DrivingEnv(gym.Env):
         self.render_mode = render_mode
         for w in self._worlds.values():
             w.rgb_frames = labeler is not None or render_mode == "rgb_array"  # GT states need no RGB image
-        self._path_view = None  # the path state option's planner (brlcli.pathview), run at every decision
-        if state == "path":
-            from brlcli.pathview import PathView
-
-            self._path_view = PathView(FRAMES_PER_DECISION)
         self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(STATE_DIM + STATE_OPTIONS[state],),
                                                 dtype=np.float32)
         self.action_space = gym.spaces.Discrete(len(self.actions))
@@ -171,12 +166,10 @@ class DrivingEnv(gym.Env):
         if isinstance(r_stand, bool) or not isinstance(r_stand, int | float) or not r_stand >= 0:
             raise ValueError(f"r_stand must be >= 0, got {r_stand!r}")
 
-    def _observe(self, frame: Any, command: int = 0, held: Control | None = None) -> np.ndarray:
+    def _observe(self, frame: Any) -> np.ndarray:
         self._rgb = frame.rgb
         labels = frame.labels if self.labeler is None else self.labeler(frame.rgb)
-        speed_kmh = frame.measurements.forward_speed_kmh
-        near = 0.0 if self._path_view is None else self._path_view.update(labels, speed_kmh, command, held)
-        self._state = agent_state(labels, frame.depth, self.state_option, speed_kmh, near)
+        self._state = agent_state(labels, frame.depth, self.state_option, frame.measurements.forward_speed_kmh)
         return self._state.astype(np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
@@ -211,12 +204,9 @@ class DrivingEnv(gym.Env):
         self._stuck_s = 0.0
         m = frame.measurements
         self._route_s, _ = self.route.project(m.x, m.y)
-        if self._path_view is not None:
-            self._path_view.reset(self.world)
-        command = int(self.route.command_at(self._route_s))
-        return self._observe(frame, command), {"route": spec.name, "route_length_m": self.route.length_m,
-                                               "command": command,
-                                               **({"traffic": self.traffic_level} if self.traffic_levels else {})}
+        return self._observe(frame), {"route": spec.name, "route_length_m": self.route.length_m,
+                                      "command": int(self.route.command_at(self._route_s)),
+                                      **({"traffic": self.traffic_level} if self.traffic_levels else {})}
 
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the action's control for 7 frames, render the last one, and score it."""
@@ -229,8 +219,7 @@ class DrivingEnv(gym.Env):
         total = m.collision_vehicles + m.collision_pedestrians + m.collision_other
         collided = total > self._collision_total
         self._collision_total = total
-        s, lateral = self.route.project(m.x, m.y)
-        obs = self._observe(frame, int(self.route.command_at(s)) if self._path_view is not None else 0, control)
+        obs = self._observe(frame)
         hit_road_user = collided and m.collision_vehicles + m.collision_pedestrians > self._road_user_total
         self._road_user_total = m.collision_vehicles + m.collision_pedestrians
         terms = reward_terms(collided, m.intersection_offroad, m.intersection_otherlane, m.forward_speed_kmh,
@@ -243,6 +232,7 @@ class DrivingEnv(gym.Env):
             terms = hazard_terms(m.forward_speed_kmh, gap, terms, self.reward_params, self.hazard)
         if self.r_stand and v_target >= vt and abs(m.forward_speed_kmh) < STUCK_SPEED_KMH:
             terms = {**terms, "stand": -self.r_stand, "total": terms["total"] - self.r_stand}
+        s, lateral = self.route.project(m.x, m.y)
         wrong_turn = False
         if self.route_reward is not None:
             expected = v_target / 3.6 * FRAMES_PER_DECISION * FRAME_DT_S
