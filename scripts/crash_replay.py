@@ -1,0 +1,109 @@
+"""How a bench's crashes happened: replay every crashed episode of a `brl bench` output with its model and print the
+road users nearest the car at the crash (issue 35).
+
+    python scripts/crash_replay.py BENCH_DIR MODEL [--json FILE]
+
+Each episode the bench ended in a crash (NoCrash or nav_validation_traffic) is driven again by the bench's own
+episode function (`brlcli.bench.runner.run_episode`, the bench's seed; the same episode, frame for frame) with the
+world's traffic recorded at every frame. Printed per crash: the car's speed at the crash and 1 s before, whether it is
+on a junction connector or a lane, its command, its share in the opposite lane, and the three nearest road users
+within 10 m in the car's frame (ahead / left, m; their velocity, m/s; their heading relative to the car's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from brlcli.bench.runner import run_episode, world_for
+from brlcli.bench.suites import build_suite
+from brlcli.classes import CarlaClass
+from brlcli.policy import BRLPolicy
+from brlcli.provenance import atomic_write_json
+from brlcli.sim.roadnet import Navigator
+
+
+class _Recording:
+    """A World that keeps the traffic's boxes and velocities and the car's speed after every step."""
+
+    def __init__(self, world: Any) -> None:
+        self._world = world
+        self.frames: list[tuple[np.ndarray, np.ndarray, float]] = []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._world, name)
+
+    def reset(self, *args: Any, **kwargs: Any) -> Any:
+        self.frames = []
+        return self._world.reset(*args, **kwargs)
+
+    def step(self, *args: Any, **kwargs: Any) -> Any:
+        frame = self._world.step(*args, **kwargs)
+        self.frames.append((self._world.traffic.boxes().copy(), self._world.traffic.velocities().copy(),
+                            float(frame.measurements.forward_speed_kmh)))
+        return frame
+
+
+def _road_users(boxes: np.ndarray, vel: np.ndarray, x: float, y: float, yaw_deg: float) -> list[dict]:
+    """The three nearest road users within 10 m, in the car's frame."""
+    yaw = math.radians(yaw_deg)
+    fwd, left = np.array([math.cos(yaw), math.sin(yaw)]), np.array([-math.sin(yaw), math.cos(yaw)])
+    dist = np.hypot(boxes[:, 1] - x, boxes[:, 2] - y)
+    out = []
+    for k in np.argsort(dist)[:3]:
+        if dist[k] > 10.0:
+            break
+        rel = boxes[k, 1:3] - (x, y)
+        out.append({"kind": "vehicle" if int(boxes[k, 0]) == CarlaClass.VEHICLES else "pedestrian",
+                    "ahead_m": round(float(rel @ fwd), 1), "left_m": round(float(rel @ left), 1),
+                    "v_ahead_ms": round(float(vel[k] @ fwd), 1), "v_left_ms": round(float(vel[k] @ left), 1),
+                    "heading_deg": round(float((boxes[k, 7] - yaw_deg + 180.0) % 360.0 - 180.0))})
+    return out
+
+
+def main() -> None:
+    """Replay the crashed episodes and print what was near."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("bench", type=Path)
+    ap.add_argument("model")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    config = json.loads((args.bench / "bench.json").read_text())["config"]
+    rows = [json.loads(line) for line in (args.bench / "results.jsonl").read_text().splitlines() if line.strip()]
+    specs = {s.id: s for s in build_suite(config["suite"])}
+    policy = BRLPolicy("replay", args.model)
+    cache: dict[tuple, Any] = {}
+    out = []
+    for row in rows:
+        if not row.get("crashed"):
+            continue
+        spec = specs[row["id"]]
+        world = _Recording(world_for(cache, spec, policy))
+        result, log = run_episode(world, spec, policy, int(config["seed"]))  # type: ignore[arg-type]
+        if not result.get("crashed"):
+            print(f"{row['id']}: the replay did not crash (the bench's record differs); skipped")
+            continue
+        n = len(log["x"]) - 1
+        x, y, yaw = float(log["x"][n]), float(log["y"][n]), float(log["yaw_deg"][n])
+        path, _, _ = world.network.locate(x, y)
+        boxes, vel, _ = world.frames[-1]
+        command = int(Navigator(world.network, spec.start, spec.goal).command(x, y, yaw))
+        rec = {"id": row["id"], "speed_kmh": round(float(log["forward_speed_kmh"][n]), 1),
+               "speed_1s_before_kmh": round(float(log["forward_speed_kmh"][max(n - 10, 0)]), 1),
+               "on": "lane" if path in set(world.network.lane_ids) else "junction",
+               "command_at_crash": command, "otherlane": round(float(log["intersection_otherlane"][n]), 2),
+               "reversing_1s_before": bool(log["forward_speed_kmh"][max(n - 10, 0)] < -0.5),
+               "road_users": _road_users(boxes, vel, x, y, yaw)}
+        out.append(rec)
+        print(json.dumps(rec))
+    if args.json:
+        atomic_write_json(args.json, {"bench": str(args.bench), "model": args.model, "crashes": out})
+
+
+if __name__ == "__main__":
+    main()
