@@ -154,12 +154,9 @@ class StatePolicy:
         labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
         speed = obs.measurements.forward_speed_kmh if self.state_option == "speed" else 0.0
         state = agent_state(labels, obs.depth, self.state_option, speed)
-        import os  # PROBE (not to be committed)
-        control = self.actions[int(self.act(state, obs.command))] if self.uses_command else \
-            self.actions[int(self.act(state))]
-        if os.environ.get("BRL_NO_REVERSE") and control.reverse:
-            return STOP
-        return control
+        if self.uses_command:
+            return self.actions[int(self.act(state, obs.command))]
+        return self.actions[int(self.act(state))]
 
 
 def greedy_brl(agent: Any) -> Callable[[np.ndarray], int]:
