@@ -119,10 +119,15 @@ class LaneKeepingLearner:
         self.agent.save(path)
 
 
+def _state_and_action_sizes(cfg: TrainConfig) -> tuple[int, int]:
+    """The run's state size (the paper's 30 and its state option's numbers) and its number of actions."""
+    return STATE_DIM + STATE_OPTIONS[cfg.state], len(ACTION_SETS[cfg.actions])
+
+
 def new_learner(cfg: TrainConfig) -> Learner:
     """A fresh learner for this run: the paper's agent, the command-conditioned one for navigation, or a brake gate
     over its frozen driver."""
-    dim, n_actions = STATE_DIM + STATE_OPTIONS[cfg.state], len(ACTION_SETS[cfg.actions])
+    dim, n_actions = _state_and_action_sizes(cfg)
     if cfg.driver_model is not None:
         return _new_gate(cfg, dim, n_actions)
     if cfg.task == "navigation":
@@ -148,6 +153,12 @@ def _gate_driver(cfg: TrainConfig, dim: int, n_actions: int) -> Any:
         raise BrlInputError(f"driver_model {cfg.driver_model} has state size {driver.state_dim} and {driver.n_actions} "
                             f"actions, but state '{cfg.state}' and actions '{cfg.actions}' need {dim} and {n_actions}")
     return driver
+
+
+def _check_driver(cfg: TrainConfig) -> None:
+    """A `driver_model` that cannot work under the run's state and actions fails here, before anything is written."""
+    if cfg.driver_model is not None:
+        _gate_driver(cfg, *_state_and_action_sizes(cfg))
 
 
 def load_learner(cfg: TrainConfig, path: Path) -> Learner:
@@ -275,8 +286,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     """Train one agent; returns the summary record. Resumable from the last finished episode."""
     run_dir = Path(run_dir)
     check_run_dir(cfg, run_dir, resume)
-    if cfg.driver_model is not None:  # a driver that cannot work is refused before anything is written
-        _gate_driver(cfg, STATE_DIM + STATE_OPTIONS[cfg.state], len(ACTION_SETS[cfg.actions]))
+    _check_driver(cfg)
     run_dir.mkdir(parents=True, exist_ok=True)
     if not (run_dir / "config.json").exists():
         atomic_write_json(run_dir / "config.json", provenance(cfg.to_dict(), kind="train-run"))
@@ -777,6 +787,7 @@ def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, 
     for c in cfgs:
         check_run_dir(c, run_dir_for(out, c.seed), resume)
     labeler(cfg)  # a bad segmentation net fails here, with one line
+    _check_driver(cfg)  # ... and a driver of another state size or action set
     ex = executor if isinstance(executor, Executor) else Executor(executor, workers, ray_address)
     ex.connect()  # a bad executor fails before anything is written
     try:

@@ -4,12 +4,13 @@ road users nearest the car at the crash (issue 35).
     python scripts/crash_replay.py BENCH_DIR MODEL [--timeouts] [--json FILE]
 
 Each episode the bench ended in a crash (NoCrash or nav_validation_traffic) is driven again by the bench's own
-episode function (`brlcli.bench.runner.run_episode`, the bench's seed; the same episode, frame for frame) with the
-world's traffic recorded at every frame. Printed per crash: the car's speed at the crash and 1 s before, whether it is
-on a junction connector or a lane, its command, its share in the opposite lane, and the three nearest road users
-within 10 m in the car's frame (ahead / left, m; their velocity, m/s; their heading relative to the car's). With
-`--timeouts` the episodes that ran out of time instead, the road users within 15 m at the end and how long the car
-had stood.
+episode function (`brlcli.bench.runner.run_episode`, the bench's seed; the same episode, frame for frame); the
+world's traffic is read where the episode ended. Printed per crash: the car's speed at the crash and 1 s before,
+whether it is on a junction connector or a lane, its command there (a planner started afresh from the episode's
+start, so after a replan it may differ from the bench's), its share in the opposite lane, and the three nearest road
+users within 10 m in the car's frame (ahead / left, m; their velocity, m/s; their heading relative to the car's,
+degrees). With `--timeouts` the episodes that ran out of time instead, the road users within 15 m at the end and how
+long the car had stood.
 """
 
 from __future__ import annotations
@@ -30,27 +31,6 @@ from brlcli.provenance import atomic_write_json
 from brlcli.sim.roadnet import Navigator
 
 
-class _Recording:
-    """A World that keeps the traffic's boxes and velocities and the car's speed after every step."""
-
-    def __init__(self, world: Any) -> None:
-        self._world = world
-        self.frames: list[tuple[np.ndarray, np.ndarray, float]] = []
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._world, name)
-
-    def reset(self, *args: Any, **kwargs: Any) -> Any:
-        self.frames = []
-        return self._world.reset(*args, **kwargs)
-
-    def step(self, *args: Any, **kwargs: Any) -> Any:
-        frame = self._world.step(*args, **kwargs)
-        self.frames.append((self._world.traffic.boxes().copy(), self._world.traffic.velocities().copy(),
-                            float(frame.measurements.forward_speed_kmh)))
-        return frame
-
-
 def _road_users(boxes: np.ndarray, vel: np.ndarray, x: float, y: float, yaw_deg: float, within_m: float = 10.0,
                 n: int = 3) -> list[dict]:
     """The `n` nearest road users within `within_m`, in the car's frame."""
@@ -65,7 +45,7 @@ def _road_users(boxes: np.ndarray, vel: np.ndarray, x: float, y: float, yaw_deg:
         out.append({"kind": "vehicle" if int(boxes[k, 0]) == CarlaClass.VEHICLES else "pedestrian",
                     "ahead_m": round(float(rel @ fwd), 1), "left_m": round(float(rel @ left), 1),
                     "v_ahead_ms": round(float(vel[k] @ fwd), 1), "v_left_ms": round(float(vel[k] @ left), 1),
-                    "heading_deg": round(float((boxes[k, 7] - yaw_deg + 180.0) % 360.0 - 180.0))})
+                    "heading_deg": round(float((math.degrees(boxes[k, 7]) - yaw_deg + 180.0) % 360.0 - 180.0))})
     return out
 
 
@@ -88,15 +68,15 @@ def main() -> None:
         if not (timed_out if args.timeouts else row.get("crashed")):
             continue
         spec = specs[row["id"]]
-        world = _Recording(world_for(cache, spec, policy))
-        result, log = run_episode(world, spec, policy, int(config["seed"]))  # type: ignore[arg-type]
+        world = world_for(cache, spec, policy)
+        result, log = run_episode(world, spec, policy, int(config["seed"]))  # the traffic stays at the last frame
         if (result["success"], bool(result.get("crashed"))) != (row["success"], bool(row.get("crashed"))):
             print(f"{row['id']}: the replay ended otherwise than the bench's record; skipped")
             continue
         n = len(log["x"]) - 1
         x, y, yaw = float(log["x"][n]), float(log["y"][n]), float(log["yaw_deg"][n])
         path, _, _ = world.network.locate(x, y)
-        boxes, vel, _ = world.frames[-1]
+        boxes, vel = world.traffic.boxes(), world.traffic.velocities()
         command = int(Navigator(world.network, spec.start, spec.goal).command(x, y, yaw))
         rec = {"id": row["id"], "speed_kmh": round(float(log["forward_speed_kmh"][n]), 1),
                "speed_1s_before_kmh": round(float(log["forward_speed_kmh"][max(n - 10, 0)]), 1),

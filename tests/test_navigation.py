@@ -432,7 +432,6 @@ def test_gate_files_of_retired_knobs_are_refused_in_one_line(tmp_path: Path) -> 
     assert BrakeGatedAgent.load(tmp_path / "plain.npz").gate.state_dim == 6
 
 
-
 def test_a_driver_of_another_state_is_refused_before_anything_is_written(tmp_path: Path) -> None:
     train_run(TrainConfig(task="navigation", steps=20, seed=0, evaluate=False, actions="fine", state="speed"),
               tmp_path / "speed_driver")
@@ -441,3 +440,9 @@ def test_a_driver_of_another_state_is_refused_before_anything_is_written(tmp_pat
                               traffic=["dense"], r_hazard=20.0, state="nearness",
                               driver_model=str(tmp_path / "speed_driver")), tmp_path / "bad")
     assert not (tmp_path / "bad").exists()
+    result = subprocess.run([sys.executable, "-m", "brlcli", "train", "--task", "navigation", "--seeds", "0",
+                             "--set", f"driver_model={tmp_path / 'speed_driver'}", "--set", "state=nearness",
+                             "--set", 'traffic=["dense"]', "--set", "r_hazard=20", "--steps", "10", "--no-evaluate",
+                             "--out", str(tmp_path / "bad_cli")], capture_output=True, text=True)
+    assert result.returncode == 2 and "need 33" in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "bad_cli").exists()
