@@ -217,30 +217,6 @@ class BRLPolicy(StatePolicy):
                          greedy_command_brl(self.agent) if command else greedy_brl(self.agent),
                          labeler_for(deploy, segnet), model_camera(Path(model)), uses_command=command,
                          actions=actions, state=state)
-        import os  # PROBE (issue 35): BRL_GATE_PATIENCE="P,G": after P s standing at a gate's stop, go for G s
-        probe = os.environ.get("BRL_GATE_PATIENCE")
-        self._patience = tuple(float(x) for x in probe.split(",")) if probe and gated else None
-
-    def reset(self, spec: EpisodeSpec, world: Any) -> None:
-        """Forget the standing time (the gate's patience probe)."""
-        self._standing_s, self._go_s = 0.0, 0.0
-
-    def decide(self, obs: Observation) -> Control:
-        """The greedy action; under the patience probe a gate's stop after P s standing becomes G s of the driver."""
-        if self._patience is None:
-            return super().decide(obs)
-        dt = self.frames_per_decision * 0.1
-        self._standing_s = self._standing_s + dt if abs(obs.measurements.forward_speed_kmh) < 1.0 else 0.0
-        labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
-        state = agent_state(labels, obs.depth, self.state_option, obs.measurements.forward_speed_kmh)
-        action = int(self.act(state, obs.command))
-        if action == self.agent.stop_action and (self._go_s > 0 or self._standing_s >= self._patience[0]):
-            if self._go_s <= 0:
-                self._go_s = self._patience[1]
-            action = 3 if len(self._patience) > 2 else \
-                self.agent.driver.act(state[: self.agent.driver.state_dim], obs.command, self.agent._rng, greedy=True)
-        self._go_s -= dt
-        return self.actions[action]
 
 
 class AutopilotPolicy:

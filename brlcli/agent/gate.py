@@ -87,11 +87,6 @@ class BrakeGatedAgent:
 
     def act(self, state: np.ndarray, command: int, rng: np.random.Generator, greedy: bool = False) -> int:
         """The gate's behaviour (or greedy) choice: `stop`, or the driver's greedy action under the command."""
-        threshold = os.environ.get("BRL_GATE_STOP_P")  # PROBE (issue 35): greedy stop iff p(stop|s) > threshold
-        if greedy and threshold:
-            if self.gate.action_probabilities(gate_features(state))[STOP] > float(threshold):
-                return self.stop_action
-            return self.driver.act(state, command, self._rng, greedy=True)
         if self.gate.act(gate_features(state), rng, greedy=greedy) == STOP:
             return self.stop_action
         return self.driver.act(state, command, self._rng, greedy=True)
