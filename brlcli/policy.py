@@ -217,44 +217,6 @@ class BRLPolicy(StatePolicy):
                          greedy_command_brl(self.agent) if command else greedy_brl(self.agent),
                          labeler_for(deploy, segnet), model_camera(Path(model)), uses_command=command,
                          actions=actions, state=state)
-        import os  # PROBE (issue 35): BRL_ORACLE_GATE=GAP_M,PREDICT_S: stop iff the privileged hazard gap < GAP_M
-        probe = os.environ.get("BRL_ORACLE_GATE")
-        self._oracle = (*(float(x) for x in probe.split(",")), 0.0)[:3] if probe and command else None
-
-    def reset(self, spec: EpisodeSpec, world: Any) -> None:
-        """The oracle-gate probe's world and route planner."""
-        if self._oracle is not None:
-            from brlcli.sim.roadnet import Navigator
-
-            self._world, self._navigator = world, Navigator(world.network, spec.start, spec.goal)
-
-    def decide(self, obs: Observation) -> Control:
-        """The greedy action; under the oracle-gate probe the stop primitive wherever the privileged gap is short."""
-        if self._oracle is not None:
-            from brlcli.sim.gym_env import STOP as STOP_CONTROL
-            from brlcli.sim.hazard import hazard_gap_m
-
-            m = obs.measurements
-            self._navigator.command(m.x, m.y, m.yaw_deg)
-            times = tuple(0.5 * k for k in range(round(self._oracle[1] / 0.5) + 1))
-            gap = hazard_gap_m(self._world.traffic, self._navigator.route, m.x, m.y, m.yaw_deg, times) \
-                if self._oracle[2] != 1 else float("inf")
-            if self._oracle[2] >= 1:  # along the car's own heading too (1: only there)
-                from types import SimpleNamespace
-
-                yaw = np.radians(m.yaw_deg)
-                ahead = np.arange(0.0, 31.0)
-                line = SimpleNamespace(points=np.column_stack([m.x + ahead * np.cos(yaw), m.y + ahead * np.sin(yaw)]),
-                                       cum_s=ahead, project=lambda x, y: (0.0, 0.0))
-                gap = min(gap, hazard_gap_m(self._world.traffic, line, m.x, m.y, m.yaw_deg, times))
-            if gap < self._oracle[0]:
-                return STOP_CONTROL
-            labels = obs.labels if self.labeler is None else self.labeler(obs.rgb)
-            state = agent_state(labels, obs.depth, self.state_option, m.forward_speed_kmh)
-            driver = getattr(self.agent, "driver", self.agent)
-            return self.actions[int(driver.act(state[: driver.state_dim], obs.command, np.random.default_rng(0),
-                                                greedy=True))]
-        return super().decide(obs)
 
 
 class AutopilotPolicy:

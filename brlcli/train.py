@@ -268,7 +268,7 @@ def run_episode(env: DrivingEnv, run: Run, hooks: Sequence[Hook]) -> tuple[list[
         action = run.agent.act(state, command, run.rng)
         obs, reward, terminated, truncated, info = env.step(action)
         next_state = obs.astype(np.float64)
-        if decision > 0 and not info.get("overridden"):  # no learning on the first decision after a reset
+        if decision > 0:  # no learning on the first decision after a reset
             learned = run.agent.learn(state, action, reward, next_state, command, info["command"])
             run.step += 1
             run.stats.reward_sum += reward

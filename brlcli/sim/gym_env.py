@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
 from typing import Any, ClassVar
 
@@ -169,7 +168,6 @@ class DrivingEnv(gym.Env):
 
     def _observe(self, frame: Any) -> np.ndarray:
         self._rgb = frame.rgb
-        self._last_m = frame.measurements
         labels = frame.labels if self.labeler is None else self.labeler(frame.rgb)
         self._state = agent_state(labels, frame.depth, self.state_option, frame.measurements.forward_speed_kmh)
         return self._state.astype(np.float32)
@@ -215,14 +213,6 @@ class DrivingEnv(gym.Env):
         if not self.action_space.contains(action):
             raise BrlInputError(f"action {action!r} is not one of 0..{len(self.actions) - 1}")
         control = self.actions[int(action)]
-        overridden = False
-        probe = os.environ.get("BRL_ORACLE_BRAKE")  # PROBE (issue 35): a privileged brake while the driver learns
-        if probe and self.traffic_levels:
-            gap_m, predict_s = (float(x) for x in probe.split(","))
-            lm = self._last_m
-            times = tuple(0.5 * k for k in range(round(predict_s / 0.5) + 1))
-            if hazard_gap_m(self.world.traffic, self.route, lm.x, lm.y, lm.yaw_deg, times) < gap_m:
-                control, overridden = STOP, True
         for k in range(FRAMES_PER_DECISION):
             frame = self.world.step(control, render=k == FRAMES_PER_DECISION - 1)
         m = frame.measurements
@@ -262,7 +252,7 @@ class DrivingEnv(gym.Env):
                                         or left_lane or wrong_turn or crashed)
         info = {"reward_terms": terms, "measurements": m.as_dict(), "route_s_m": s, "collided": collided,
                 "left_lane": left_lane, "wrong_turn": wrong_turn, "command": int(self.route.command_at(s)),
-                "crashed": crashed, "hazard_gap_m": gap, "traffic": self.traffic_level, "overridden": overridden}
+                "crashed": crashed, "hazard_gap_m": gap, "traffic": self.traffic_level}
         return obs, float(terms["total"]), bool(terminated), bool(truncated), info
 
     def render(self) -> np.ndarray | None:
