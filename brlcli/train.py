@@ -268,7 +268,7 @@ def run_episode(env: DrivingEnv, run: Run, hooks: Sequence[Hook]) -> tuple[list[
         action = run.agent.act(state, command, run.rng)
         obs, reward, terminated, truncated, info = env.step(action)
         next_state = obs.astype(np.float64)
-        if decision > 0:  # no learning on the first decision after a reset
+        if decision > 0 and not info.get("overridden"):  # nor where a privileged brake took the car's control
             learned = run.agent.learn(state, action, reward, next_state, command, info["command"])
             run.step += 1
             run.stats.reward_sum += reward
@@ -635,7 +635,8 @@ def make_env(cfg: TrainConfig) -> DrivingEnv:
                       route_reward=cfg.route_reward(), junction_weight=cfg.junction_weight if nav else None,
                       junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None,
                       actions=cfg.env_actions, traffic=tuple(cfg.traffic), hazard=cfg.hazard_reward(), state=cfg.state,
-                      r_stand=cfg.r_stand, road_user_contact=not cfg.ghost_traffic)
+                      r_stand=cfg.r_stand, road_user_contact=not cfg.ghost_traffic,
+                      privileged_brake_m=cfg.privileged_brake_m)
 
 
 def greedy_policy(model: Any, task: str, setting: str, labels: Callable[[np.ndarray], np.ndarray] | None,

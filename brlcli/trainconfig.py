@@ -126,6 +126,9 @@ class TrainConfig:
     # roads, a brake gate (`brlcli.agent.gate`: go or stop) learns this many steps in `traffic` with the hazard reward
     ghost_traffic: bool = False  # outside the paper: with `traffic`, the car passes through road users (seen, moving,
     # braking for it; no contact, no crash); a brake gate's driver then trains among them, the gate in real traffic
+    privileged_brake_m: float = 0.0  # outside the paper, > 0: in traffic, the training environment takes the stop
+    # primitive wherever the privileged hazard gap on the route is under this (m), and the agent does not learn from
+    # those decisions (a driver learns its lanes among road users with a teacher's brake; a brake gate over it stops)
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
     # driver/model.npz; or an existing navigation model.npz or member set, then only the gate is trained)
 
@@ -177,6 +180,13 @@ class TrainConfig:
         if not isinstance(self.ghost_traffic, bool) or (self.ghost_traffic and not self.traffic):
             raise BrlInputError("ghost_traffic is true or false and needs traffic levels (e.g. --set "
                                 "'traffic=[\"regular\",\"dense\"]')")
+        if isinstance(self.privileged_brake_m, bool) or not isinstance(self.privileged_brake_m, int | float) or \
+                self.privileged_brake_m < 0:
+            raise BrlInputError(f"privileged_brake_m must be a distance >= 0 (m), got {self.privileged_brake_m!r}")
+        if self.privileged_brake_m and (self.task != "navigation" or not self.traffic or self.ghost_traffic
+                                        or self.driver_model is not None):
+            raise BrlInputError("privileged_brake_m trains a navigation driver in real traffic: it needs --task "
+                                "navigation and traffic levels, without ghost_traffic or driver_model")
         self._check_gate()
 
     def _check_gate(self) -> None:
@@ -218,14 +228,14 @@ class TrainConfig:
 
     def driver_config(self) -> TrainConfig:
         """The configuration of a gated run's driver: the same run on empty roads, without the gate's options."""
-        if self.ghost_traffic:  # the driver trains among ghost road users, without the gate's reward
-            return replace(self, brake_gate_steps=0, r_hazard=0.0, r_stand=0.0)
+        if self.ghost_traffic or self.privileged_brake_m:  # the driver trains among (ghost) road users, without the
+            return replace(self, brake_gate_steps=0, r_hazard=0.0, r_stand=0.0)  # gate's reward
         return replace(self, brake_gate_steps=0, traffic=[], r_hazard=0.0, r_stand=0.0)
 
     def gate_config(self, driver_model: str) -> TrainConfig:
         """The configuration of a gated run's gate: `brake_gate_steps` learning steps over the frozen driver."""
         return replace(self, steps=self.brake_gate_steps, brake_gate_steps=0, driver_model=driver_model,
-                       ghost_traffic=False,
+                       ghost_traffic=False, privileged_brake_m=0.0,
                        committee=1, member=0, restart_below=None, branch_restart_below=None, curve_every=0)
 
     def to_dict(self) -> dict[str, Any]:

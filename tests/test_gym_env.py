@@ -100,6 +100,31 @@ def test_the_stop_primitive_brakes_to_a_standstill(traffic_env: DrivingEnv) -> N
     assert abs(info["measurements"]["forward_speed_kmh"]) < 0.5
 
 
+def test_a_privileged_brake_stops_the_car_at_a_hazard_and_says_so() -> None:
+    from brlcli.reward import RouteRewardParams
+
+    env = DrivingEnv(town="town01", routes="navigation", traffic=("regular",), route_reward=RouteRewardParams(),
+                     privileged_brake_m=8.0)
+    try:
+        env.reset(seed=2)
+        t = env.world.traffic
+        for i in range(t.n_vehicles):
+            t.hold_vehicle(i, -1e4 - 10 * i, -1e4, 0.0)
+        for i in range(t.n_pedestrians):
+            t.hold_pedestrian(i, 1e4 + 10 * i, 1e4)
+        *_, info = env.step(0)
+        assert not info["overridden"]  # nothing near: the agent's forward
+        m = env.world.ego
+        s, _ = env.route.project(m.x_m, m.y_m)
+        t.hold_vehicle(0, *env.route.pose_at(s + 9.0))  # a standing car 9 m ahead on the route
+        for _ in range(8):
+            *_, info = env.step(0)  # the agent keeps asking for forward
+        assert info["overridden"] and not info["crashed"]
+        assert abs(info["measurements"]["forward_speed_kmh"]) < 0.5
+    finally:
+        env.close()
+
+
 def test_episodes_draw_their_traffic_level(traffic_env: DrivingEnv) -> None:
     levels = {traffic_env.reset(seed=s)[1]["traffic"] for s in range(12)}
     assert levels == {"regular", "dense"}

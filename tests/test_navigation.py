@@ -392,6 +392,24 @@ def test_brake_gate_options_are_checked_in_one_line(overrides: dict, message: st
         TrainConfig(**{**base, **overrides})
 
 
+@pytest.mark.parametrize("overrides, message", [
+    ({"privileged_brake_m": -1.0}, "privileged_brake_m must be a distance >= 0"),
+    ({"traffic": []}, "needs --task navigation and traffic levels"),
+    ({"ghost_traffic": True}, "without ghost_traffic or driver_model"),
+])
+def test_privileged_brake_options_are_checked_in_one_line(overrides: dict, message: str) -> None:
+    base = {"task": "navigation", "traffic": ["regular"], "privileged_brake_m": 8.0}
+    with pytest.raises(BrlInputError, match=message):
+        TrainConfig(**{**base, **overrides})
+
+
+def test_a_privileged_brake_drivers_gate_learns_without_it() -> None:
+    cfg = TrainConfig(task="navigation", traffic=["regular"], privileged_brake_m=8.0, brake_gate_steps=50,
+                      r_hazard=20.0, actions="fine")
+    assert cfg.driver_config().traffic == ["regular"] and cfg.driver_config().privileged_brake_m == 8.0
+    assert cfg.gate_config("models/brl_nav/seed_0").privileged_brake_m == 0.0
+
+
 def test_a_brake_gate_drives_over_a_shipped_member_set() -> None:
     from brlcli.agent.command import CommitteeAgent
     from brlcli.train import new_learner

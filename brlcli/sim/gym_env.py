@@ -80,7 +80,8 @@ class DrivingEnv(gym.Env):
                  otherlane_end: float | None = None, route_reward: RouteRewardParams | None = None,
                  junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None,
                  actions: str = "paper", traffic: tuple[str, ...] = (), hazard: HazardRewardParams | None = None,
-                 state: str = "paper", r_stand: float = 0.0, road_user_contact: bool = True) -> None:
+                 state: str = "paper", r_stand: float = 0.0, road_user_contact: bool = True,
+                 privileged_brake_m: float = 0.0) -> None:
         super().__init__()
         try:
             self.check_traffic_options(actions, traffic, state, r_stand)
@@ -90,6 +91,7 @@ class DrivingEnv(gym.Env):
             raise BrlInputError("give either traffic levels or vehicle and pedestrian counts, not both")
         self.actions = ACTION_SETS[actions]
         self.r_stand = float(r_stand)  # outside the paper: the cost per decision of standing where nothing is ahead
+        self.privileged_brake_m = float(privileged_brake_m)  # outside the paper: see `step`
         self.state_option = state
         self.hazard = hazard
         self.traffic_levels = tuple(traffic)
@@ -168,6 +170,7 @@ class DrivingEnv(gym.Env):
 
     def _observe(self, frame: Any) -> np.ndarray:
         self._rgb = frame.rgb
+        self._last_m = frame.measurements
         labels = frame.labels if self.labeler is None else self.labeler(frame.rgb)
         self._state = agent_state(labels, frame.depth, self.state_option, frame.measurements.forward_speed_kmh)
         return self._state.astype(np.float32)
@@ -209,10 +212,18 @@ class DrivingEnv(gym.Env):
                                       **({"traffic": self.traffic_level} if self.traffic_levels else {})}
 
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
-        """Hold the action's control for 7 frames, render the last one, and score it."""
+        """Hold the action's control for 7 frames, render the last one, and score it. With `privileged_brake_m` (in
+        traffic; outside the paper) the control is the stop primitive instead wherever the privileged hazard gap
+        along the route (road users predicted 0-2 s ahead, the expert's test) is under that distance, and
+        info["overridden"] says so: a driver learns among road users with a teacher's brake."""
         if not self.action_space.contains(action):
             raise BrlInputError(f"action {action!r} is not one of 0..{len(self.actions) - 1}")
         control = self.actions[int(action)]
+        overridden = False
+        if self.privileged_brake_m > 0 and self.traffic_levels:
+            lm = self._last_m
+            if hazard_gap_m(self.world.traffic, self.route, lm.x, lm.y, lm.yaw_deg) < self.privileged_brake_m:
+                control, overridden = STOP, True
         for k in range(FRAMES_PER_DECISION):
             frame = self.world.step(control, render=k == FRAMES_PER_DECISION - 1)
         m = frame.measurements
@@ -252,7 +263,7 @@ class DrivingEnv(gym.Env):
                                         or left_lane or wrong_turn or crashed)
         info = {"reward_terms": terms, "measurements": m.as_dict(), "route_s_m": s, "collided": collided,
                 "left_lane": left_lane, "wrong_turn": wrong_turn, "command": int(self.route.command_at(s)),
-                "crashed": crashed, "hazard_gap_m": gap, "traffic": self.traffic_level}
+                "crashed": crashed, "hazard_gap_m": gap, "traffic": self.traffic_level, "overridden": overridden}
         return obs, float(terms["total"]), bool(terminated), bool(truncated), info
 
     def render(self) -> np.ndarray | None:
