@@ -25,14 +25,12 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
+from hazard_state_evidence import _auc, _balanced_accuracy, _fit_logistic, _predict, expert_episode
 
-from brlcli.autopilot import Autopilot
-from brlcli.bench.suites import NOCRASH_TRAFFIC
 from brlcli.classes import CarlaClass
 from brlcli.features import NEARNESS_RANGE_M, state_vector
 from brlcli.npzio import save_npz
 from brlcli.provenance import atomic_write_json
-from brlcli.sim import World
 from brlcli.sim.gym_env import FRAMES_PER_DECISION
 from brlcli.sim.hazard import CORRIDOR_HALF_M, PATH_AHEAD_M, PREDICT_S, hazard_gap_m
 from brlcli.sim.traffic import CAR_CIRCLES_M, car_circles
@@ -91,18 +89,7 @@ def _hazard_bearing_deg(traffic: object, route: object, x_m: float, y_m: float, 
 
 
 def _episode(seed: int) -> dict[str, np.ndarray]:
-    task = ("regular", "dense")[seed % 2]
-    n_v, n_p = NOCRASH_TRAFFIC["town01"][task]
-    world = World("town01", vehicles=n_v, pedestrians=n_p, seed=seed)
-    rng = np.random.default_rng(seed)
-    poses = world.town.spawn_poses
-    while True:
-        a, b = rng.choice(len(poses), 2, replace=False)
-        route = world.network.route(tuple(poses[a]), tuple(poses[b]))
-        if route.cum_s[-1] >= 200.0:
-            break
-    frame = world.reset(tuple(poses[a]), seed=seed)
-    pilot = Autopilot(world, route, np.random.default_rng(seed), noise=None)
+    world, route, frame, pilot = expert_episode(seed)  # the same episodes as hazard_state_evidence.py
     rows: dict[str, list] = {"image": [], "command": [], "state": [], "gap": [], "gap_now": [], "bearing_deg": [],
                            "bearing_now_deg": []}
     previous = None
@@ -181,8 +168,6 @@ def _cnn_scores(data: dict[str, np.ndarray], y: np.ndarray, fit: np.ndarray, epo
 
 def main() -> None:
     """Record (or read) the decisions, fit both models per label and print the table."""
-    from hazard_state_evidence import _auc, _balanced_accuracy, _fit_logistic, _predict
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=80)
     ap.add_argument("--workers", type=int, default=2)

@@ -20,6 +20,7 @@ import math
 import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -38,7 +39,9 @@ from brlcli.sim.hazard import hazard_gap_m
 NEAR_M = 8.0
 
 
-def _episode(seed: int) -> dict[str, list]:
+def expert_episode(seed: int) -> tuple[World, Any, Any, Autopilot]:
+    """The seeded evidence episode: town01 in Regular (even seeds) or Dense (odd) traffic, a route of >= 200 m between
+    two spawn poses, the world reset at its start and the privileged autopilot on it: (world, route, frame, pilot)."""
     task = ("regular", "dense")[seed % 2]
     n_v, n_p = NOCRASH_TRAFFIC["town01"][task]
     world = World("town01", vehicles=n_v, pedestrians=n_p, seed=seed)
@@ -50,7 +53,11 @@ def _episode(seed: int) -> dict[str, list]:
         if route.cum_s[-1] >= 200.0:
             break
     frame = world.reset(tuple(poses[a]), seed=seed)
-    pilot = Autopilot(world, route, np.random.default_rng(seed), noise=None)
+    return world, route, frame, Autopilot(world, route, np.random.default_rng(seed), noise=None)
+
+
+def _episode(seed: int) -> dict[str, list]:
+    world, route, frame, pilot = expert_episode(seed)
     rows: dict[str, list] = {"state": [], "gap": [], "gap_now": [], "depth": [], "speed": []}
     for i in range(900):
         m = frame.measurements
