@@ -125,6 +125,42 @@ def test_a_privileged_brake_stops_the_car_at_a_hazard_and_says_so() -> None:
         env.close()
 
 
+def test_the_expert_action_drives_a_route_and_brakes_where_the_set_has_stop() -> None:
+    from brlcli.reward import RouteRewardParams
+    from brlcli.sim.gym_env import ACTION_SETS, STOP
+
+    env = DrivingEnv(town="town01", routes="navigation", actions="fine", route_reward=RouteRewardParams())
+    try:
+        env.reset(seed=3)
+        for _ in range(200):
+            a = env.expert_action()
+            assert env.actions[a].throttle > 0 and not env.actions[a].reverse
+            *_, terminated, truncated, info = env.step(a)
+            if terminated or truncated:
+                break
+        assert terminated, "the expert's nearest primitives reach the goal of an empty route"
+    finally:
+        env.close()
+    env = DrivingEnv(town="town01", routes="navigation", actions="fine_stop", traffic=("regular",),
+                     route_reward=RouteRewardParams())
+    try:
+        env.reset(seed=2)
+        t = env.world.traffic
+        for i in range(t.n_vehicles):
+            t.hold_vehicle(i, -1e4 - 10 * i, -1e4, 0.0)
+        for i in range(t.n_pedestrians):
+            t.hold_pedestrian(i, 1e4 + 10 * i, 1e4)
+        env.step(0)
+        assert env.expert_action() != ACTION_SETS["fine_stop"].index(STOP)
+        m = env.world.ego
+        s, _ = env.route.project(m.x_m, m.y_m)
+        t.hold_vehicle(0, *env.route.pose_at(s + 6.0))  # a standing car 6 m ahead: the expert brakes
+        env.step(0)
+        assert env.expert_action() == ACTION_SETS["fine_stop"].index(STOP)
+    finally:
+        env.close()
+
+
 def test_episodes_draw_their_traffic_level(traffic_env: DrivingEnv) -> None:
     levels = {traffic_env.reset(seed=s)[1]["traffic"] for s in range(12)}
     assert levels == {"regular", "dense"}

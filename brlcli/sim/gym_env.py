@@ -9,6 +9,7 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
+from brlcli.autopilot import Autopilot
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM, STATE_OPTIONS, agent_state
 from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams, hazard_terms, reward_terms, route_terms
@@ -274,3 +275,14 @@ class DrivingEnv(gym.Env):
         """Release the worlds' physics clients."""
         for w in self._worlds.values():
             w.close()
+
+    def expert_action(self) -> int:
+        """The index of the action nearest the privileged expert's control at the last observation (outside the
+        paper: a teacher for `brl train`'s `teacher_share`): `stop` where the set has it and the expert brakes,
+        else the forward-driving primitive whose steering is nearest the expert's (`brl bench --agent oracle`'s
+        quantisation)."""
+        expert = Autopilot(self.world, self.route, np.random.default_rng(0)).expert(self._last_m)
+        if expert.brake > 0.0 and STOP in self.actions:
+            return self.actions.index(STOP)
+        forward = [i for i, a in enumerate(self.actions) if a.throttle > 0.0 and not a.reverse]
+        return min(forward, key=lambda i: abs(self.actions[i].steer - expert.steer))
