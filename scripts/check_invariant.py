@@ -78,7 +78,7 @@ def plan(quick: bool) -> list[tuple[str, list[str]]]:
         ("train navigation (committee of 2)", ["train", "--task", "navigation", "--steps", "1500", "--seed", "0",
                                                "--set", "committee=2", "--out", "nav"]),
         ("train navigation (curve)", ["train", "--task", "navigation", "--steps", "1000", "--curve-every", "500",
-                                      "--seed", "1", "--no-evaluate", "--out", "nav_curve"]),
+                                      "--set", "committee=1", "--seed", "1", "--no-evaluate", "--out", "nav_curve"]),
         ("assemble the shipped committee", ["train", "--task", "navigation", "--seeds", "0", "--set", "committee=7",
                                             "--out", "nav_shipped", "--resume"]),
         ("train-rl", ["train-rl", "--steps", "1200", "--eval-every", "600", "--eval-suite", "none", "--seed", "0",
