@@ -32,8 +32,7 @@ from brlcli.features import NEARNESS_RANGE_M, state_vector
 from brlcli.npzio import save_npz
 from brlcli.provenance import atomic_write_json
 from brlcli.sim.gym_env import FRAMES_PER_DECISION
-from brlcli.sim.hazard import CORRIDOR_HALF_M, PATH_AHEAD_M, PREDICT_S, hazard_gap_m
-from brlcli.sim.traffic import CAR_CIRCLES_M, car_circles
+from brlcli.sim.hazard import PREDICT_S, hazard_gap_and_user, hazard_gap_m
 
 NEAR_M = 8.0
 POOL = 4
@@ -55,37 +54,12 @@ def _image(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
 def _hazard_bearing_deg(traffic: object, route: object, x_m: float, y_m: float, yaw_deg: float,
                         predict_s: tuple[float, ...]) -> float:
     """The bearing (degrees from the car's heading, left positive) of the road user, where it is now, that sets the
-    hazard gap (`hazard_gap_m`'s test: the nearest hit of the route corridor); nan when the route is clear."""
-    boxes, vel = traffic.boxes(), traffic.velocities()  # type: ignore[attr-defined]
-    if not len(boxes):
-        return math.nan
-    s, _ = route.project(x_m, y_m)  # type: ignore[attr-defined]
-    d = np.arange(0.0, PATH_AHEAD_M + 0.5, 1.0)
-    q = np.clip(s + d, 0.0, route.cum_s[-1])  # type: ignore[attr-defined]
-    path = np.column_stack([np.interp(q, route.cum_s, route.points[:, 0]),  # type: ignore[attr-defined]
-                            np.interp(q, route.cum_s, route.points[:, 1])])  # type: ignore[attr-defined]
-    car = boxes[:, 0] == float(CarlaClass.VEHICLES)
-    user = np.concatenate([np.repeat(np.flatnonzero(car), len(CAR_CIRCLES_M)), np.flatnonzero(~car)])
-    xy = np.concatenate([car_circles(boxes[car, 1:3], boxes[car, 7]), boxes[~car, 1:3]])
-    v = vel[user]
-    half = np.where(car, CORRIDOR_HALF_M["vehicle"], CORRIDOR_HALF_M["pedestrian"])[user]
-    yaw = math.radians(yaw_deg)
-    heading = np.array([math.cos(yaw), math.sin(yaw)])
-    rel = boxes[user, 1:3] - (x_m, y_m)
-    behind = (rel @ heading < 0.0) & (v @ heading > 0.5)
-    best, who = math.inf, -1
-    for t in predict_s:
-        dist = np.linalg.norm((xy + t * v)[:, None, :] - path[None, :, :], axis=2)
-        hit = (dist < half[:, None]) & ~behind[:, None]
-        if hit.any():
-            rows, points = np.nonzero(hit)
-            k = int(np.argmin(d[points]))
-            if d[points[k]] < best:
-                best, who = float(d[points[k]]), int(user[rows[k]])
+    hazard gap (`hazard_gap_and_user`); nan when the route is clear."""
+    _, who = hazard_gap_and_user(traffic, route, x_m, y_m, yaw_deg, predict_s)  # type: ignore[arg-type]
     if who < 0:
         return math.nan
-    dx, dy = boxes[who, 1] - x_m, boxes[who, 2] - y_m
-    return float(np.degrees(np.arctan2(dy, dx) - yaw + np.pi) % 360.0 - 180.0)
+    box = traffic.boxes()[who]  # type: ignore[attr-defined]
+    return float(np.degrees(np.arctan2(box[2] - y_m, box[1] - x_m) - math.radians(yaw_deg) + np.pi) % 360.0 - 180.0)
 
 
 def _episode(seed: int) -> dict[str, np.ndarray]:

@@ -32,15 +32,22 @@ def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: fl
     tested against the corridor of the next PATH_AHEAD_M of the route (cars as three circles along their length); a
     user behind the car moving its way (following traffic) is no hazard. Privileged: the expert's and the training
     reward's view of traffic, never an agent's input."""
+    return hazard_gap_and_user(traffic, route, x_m, y_m, yaw_deg, predict_s)[0]
+
+
+def hazard_gap_and_user(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: float,
+                        predict_s: tuple[float, ...] = PREDICT_S) -> tuple[float, int]:
+    """`hazard_gap_m` and the row of `traffic.boxes()` of the road user that sets it (-1 when the route is clear)."""
     boxes = traffic.boxes()
     if not len(boxes):
-        return math.inf
+        return math.inf, -1
     vel = traffic.velocities()
     # only users that can reach the path within the prediction horizon
     horizon = PATH_AHEAD_M + CORRIDOR_HALF_M["vehicle"] + LENGTH_M + max(predict_s) * np.linalg.norm(vel, axis=1)
     near = np.hypot(boxes[:, 1] - x_m, boxes[:, 2] - y_m) < horizon
     if not near.any():
-        return math.inf
+        return math.inf, -1
+    rows_near = np.flatnonzero(near)
     boxes, vel = boxes[near], vel[near]
     car = boxes[:, 0] == float(CarlaClass.VEHICLES)
     # cars as their three circles, pedestrians as one point; `user` maps each point to its row
@@ -58,12 +65,15 @@ def hazard_gap_m(traffic: Any, route: Route, x_m: float, y_m: float, yaw_deg: fl
     ego_heading = np.array([math.cos(yaw), math.sin(yaw)])
     rel = boxes[user, 1:3] - (x_m, y_m)
     behind = (rel @ ego_heading < 0.0) & (vel @ ego_heading > 0.5)  # following traffic is no hazard
-    best = math.inf
+    best, who = math.inf, -1
     for t in predict_s:
         p = xy + t * vel  # (points, 2)
         dist = np.linalg.norm(p[:, None, :] - path[None, :, :], axis=2)  # (points, P)
         hit = (dist < half[:, None]) & ~behind[:, None]
         if hit.any():
             rows, points = np.nonzero(hit)
-            best = min(best, float((d[points] - LENGTH_M / 2 - reach[rows]).min()))
-    return max(best, 0.0) if best < math.inf else math.inf
+            gaps = d[points] - LENGTH_M / 2 - reach[rows]
+            k = int(np.argmin(gaps))
+            if gaps[k] < best:
+                best, who = float(gaps[k]), int(rows_near[user[rows[k]]])
+    return (max(best, 0.0), who) if best < math.inf else (math.inf, -1)
