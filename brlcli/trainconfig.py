@@ -132,6 +132,8 @@ class TrainConfig:
     teacher_share: float = 0.0  # outside the paper, in (0, 1]: a navigation driver's training decisions are the
     # privileged expert's nearest action (the agent learns from them) with a probability falling linearly from this
     # share to 0 over the run's learning steps (a teacher takes the wheel, less and less often)
+    r_teacher: float = 0.0  # outside the paper, > 0: a navigation agent's reward adds -r_teacher x the distance of
+    # its action from the privileged expert's nearest action at that state (0 same, 1 stop vs go; DrivingEnv.step)
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
     # driver/model.npz; or an existing navigation model.npz or member set, then only the gate is trained)
 
@@ -189,6 +191,11 @@ class TrainConfig:
         if self.teacher_share and (self.task != "navigation" or self.driver_model is not None):
             raise BrlInputError("teacher_share trains a navigation driver: it needs --task navigation and no "
                                 "driver_model")
+        if isinstance(self.r_teacher, bool) or not isinstance(self.r_teacher, int | float) or self.r_teacher < 0:
+            raise BrlInputError(f"r_teacher must be >= 0, got {self.r_teacher!r}")
+        if self.r_teacher and (self.task != "navigation" or self.driver_model is not None):
+            raise BrlInputError("r_teacher trains a navigation agent against the expert: it needs --task navigation "
+                                "and no driver_model")
         if isinstance(self.privileged_brake_m, bool) or not isinstance(self.privileged_brake_m, int | float) or \
                 self.privileged_brake_m < 0:
             raise BrlInputError(f"privileged_brake_m must be a distance >= 0 (m), got {self.privileged_brake_m!r}")
@@ -244,7 +251,7 @@ class TrainConfig:
     def gate_config(self, driver_model: str) -> TrainConfig:
         """The configuration of a gated run's gate: `brake_gate_steps` learning steps over the frozen driver."""
         return replace(self, steps=self.brake_gate_steps, brake_gate_steps=0, driver_model=driver_model,
-                       ghost_traffic=False, privileged_brake_m=0.0, teacher_share=0.0,
+                       ghost_traffic=False, privileged_brake_m=0.0, teacher_share=0.0, r_teacher=0.0,
                        committee=1, member=0, restart_below=None, branch_restart_below=None, curve_every=0)
 
     def to_dict(self) -> dict[str, Any]:

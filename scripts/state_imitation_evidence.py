@@ -187,7 +187,7 @@ def main() -> None:
 
     benches = {
         "imitator": _bench(StatePolicy("imitator", "imitation (diagnostic)", act, uses_command=True, actions=ACTIONS)),
-        "expert_restricted": _bench(OraclePolicy(turn_steer=[0.4, 0.15, 0.05], stop="braking")),
+        "expert_restricted": _bench(OraclePolicy(turn_steer=[0.4, 0.15, 0.05], stop="standstill")),
     }
     for name, figs in benches.items():
         lane = sum(f["otherlane_steps"] for f in figs.values()) / max(sum(f["steps"] for f in figs.values()), 1)
