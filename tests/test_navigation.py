@@ -421,6 +421,23 @@ def test_teacher_options_are_checked_in_one_line(overrides: dict, message: str) 
         TrainConfig(**{**{"task": "navigation", "teacher_share": 0.5}, **overrides})
 
 
+@pytest.mark.parametrize("overrides, message", [
+    ({"r_teacher": -2.0}, "r_teacher must be >= 0"),
+    ({"task": "lane-keeping"}, "needs --task navigation and no driver_model"),
+])
+def test_teacher_reward_options_are_checked_in_one_line(overrides: dict, message: str) -> None:
+    with pytest.raises(BrlInputError, match=message):
+        TrainConfig(**{**{"task": "navigation", "r_teacher": 10.0}, **overrides})
+
+
+def test_a_teacher_rewarded_run_logs_the_teacher() -> None:
+    from brlcli.train import TEACHER_LOG_COLUMNS, log_columns
+
+    cfg = TrainConfig(task="navigation", r_teacher=10.0, actions="fine_stop")
+    assert set(TEACHER_LOG_COLUMNS) <= set(log_columns(cfg))
+    assert not set(TEACHER_LOG_COLUMNS) & set(log_columns(TrainConfig(task="navigation")))
+
+
 def test_a_teacher_drives_the_decisions_it_takes_and_the_agent_learns_them() -> None:
     from brlcli.train import Run, make_env, run_episode
 
