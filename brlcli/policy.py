@@ -210,7 +210,7 @@ class BRLPolicy(StatePolicy):
         label = self.variant if self.task == "lane-keeping" else f"{self.variant}, navigation"
         if self.task == "navigation":
             label += ", fine steering" if actions.startswith("fine") else ""
-            label += ", brake gate" if gated else ", stop primitive" if actions == "stop" else ", no brake"
+            label += ", brake gate" if gated else ", stop primitive" if actions.endswith("stop") else ", no brake"
         if state != "paper":
             label += f", {state} state"
         super().__init__(name, setting_name(model_training_input(Path(model)), deploy, label),

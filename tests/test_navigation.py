@@ -438,6 +438,16 @@ def test_a_teacher_rewarded_run_logs_the_teacher() -> None:
     assert not set(TEACHER_LOG_COLUMNS) & set(log_columns(TrainConfig(task="navigation")))
 
 
+def test_a_teacher_rewarded_braking_model_says_it_has_the_stop_primitive(tmp_path: Path) -> None:
+    from brlcli.policy import BRLPolicy
+
+    cfg = TrainConfig(task="navigation", steps=60, seed=0, evaluate=False, actions="fine_stop", traffic=["regular"],
+                      r_teacher=10.0, committee=1)
+    train_run(cfg, tmp_path / "teacher")
+    policy = BRLPolicy("brl", str(tmp_path / "teacher" / "model.npz"))
+    assert len(policy.actions) == 9 and "fine steering, stop primitive" in policy.setting
+
+
 def test_a_teacher_drives_the_decisions_it_takes_and_the_agent_learns_them() -> None:
     from brlcli.train import Run, make_env, run_episode
 
