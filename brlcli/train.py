@@ -272,9 +272,6 @@ def run_episode(env: DrivingEnv, run: Run, hooks: Sequence[Hook]) -> tuple[list[
             return rows, False
         run.command = command
         action = run.agent.act(state, command, run.rng)
-        if run.cfg.teacher_share and run.rng.random() < run.cfg.teacher_share * (
-                1.0 - (run.step - run.stats.attempt_start) / run.cfg.steps):
-            action = env.expert_action()  # outside the paper: the teacher drives this decision, the agent learns it
         obs, reward, terminated, truncated, info = env.step(action)
         next_state = obs.astype(np.float64)
         if decision > 0 and not info.get("overridden"):  # nor where a privileged brake took the car's control

@@ -129,9 +129,6 @@ class TrainConfig:
     privileged_brake_m: float = 0.0  # outside the paper, > 0: in traffic, the training environment takes the stop
     # primitive wherever the privileged hazard gap on the route is under this (m), and the agent does not learn from
     # those decisions (a driver learns its lanes among road users with a teacher's brake; a brake gate over it stops)
-    teacher_share: float = 0.0  # outside the paper, in (0, 1]: a navigation driver's training decisions are the
-    # privileged expert's nearest action (the agent learns from them) with a probability falling linearly from this
-    # share to 0 over the run's learning steps (a teacher takes the wheel, less and less often)
     r_teacher: float = 0.0  # outside the paper, > 0: a navigation agent's reward adds -r_teacher x the distance of
     # its action from the privileged expert's nearest action at that state (0 same, 1 stop vs go; DrivingEnv.step)
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
@@ -185,12 +182,6 @@ class TrainConfig:
         if not isinstance(self.ghost_traffic, bool) or (self.ghost_traffic and not self.traffic):
             raise BrlInputError("ghost_traffic is true or false and needs traffic levels (e.g. --set "
                                 "'traffic=[\"regular\",\"dense\"]')")
-        if isinstance(self.teacher_share, bool) or not isinstance(self.teacher_share, int | float) or \
-                not 0.0 <= self.teacher_share <= 1.0:
-            raise BrlInputError(f"teacher_share must be a probability in [0, 1], got {self.teacher_share!r}")
-        if self.teacher_share and (self.task != "navigation" or self.driver_model is not None):
-            raise BrlInputError("teacher_share trains a navigation driver: it needs --task navigation and no "
-                                "driver_model")
         if isinstance(self.r_teacher, bool) or not isinstance(self.r_teacher, int | float) or self.r_teacher < 0:
             raise BrlInputError(f"r_teacher must be >= 0, got {self.r_teacher!r}")
         if self.r_teacher and (self.task != "navigation" or self.driver_model is not None):
@@ -251,7 +242,7 @@ class TrainConfig:
     def gate_config(self, driver_model: str) -> TrainConfig:
         """The configuration of a gated run's gate: `brake_gate_steps` learning steps over the frozen driver."""
         return replace(self, steps=self.brake_gate_steps, brake_gate_steps=0, driver_model=driver_model,
-                       ghost_traffic=False, privileged_brake_m=0.0, teacher_share=0.0, r_teacher=0.0,
+                       ghost_traffic=False, privileged_brake_m=0.0, r_teacher=0.0,
                        committee=1, member=0, restart_below=None, branch_restart_below=None, curve_every=0)
 
     def to_dict(self) -> dict[str, Any]:

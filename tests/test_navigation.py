@@ -411,17 +411,6 @@ def test_a_privileged_brake_drivers_gate_learns_without_it() -> None:
 
 
 @pytest.mark.parametrize("overrides, message", [
-    ({"teacher_share": 1.5}, "teacher_share must be a probability"),
-    ({"teacher_share": True}, "teacher_share must be a probability"),
-    ({"task": "lane-keeping"}, "needs --task navigation and no driver_model"),
-    ({"driver_model": "models/brl_nav/seed_0", "traffic": ["regular"], "r_hazard": 20.0}, "no driver_model"),
-])
-def test_teacher_options_are_checked_in_one_line(overrides: dict, message: str) -> None:
-    with pytest.raises(BrlInputError, match=message):
-        TrainConfig(**{**{"task": "navigation", "teacher_share": 0.5}, **overrides})
-
-
-@pytest.mark.parametrize("overrides, message", [
     ({"r_teacher": -2.0}, "r_teacher must be >= 0"),
     ({"task": "lane-keeping"}, "needs --task navigation and no driver_model"),
 ])
@@ -446,27 +435,6 @@ def test_a_teacher_rewarded_braking_model_says_it_has_the_stop_primitive(tmp_pat
     train_run(cfg, tmp_path / "teacher")
     policy = BRLPolicy("brl", str(tmp_path / "teacher" / "model.npz"))
     assert len(policy.actions) == 9 and "fine steering, stop primitive" in policy.setting
-
-
-def test_a_teacher_drives_the_decisions_it_takes_and_the_agent_learns_them() -> None:
-    from brlcli.train import Run, make_env, run_episode
-
-    rows_by_share = {}
-    for share in (0.0, 1.0):
-        cfg = TrainConfig(task="navigation", actions="fine", teacher_share=share, steps=10**6, committee=1)
-        env = make_env(cfg)
-        try:
-            run = Run.start(cfg)
-            run.agent.act = lambda *args: 3  # type: ignore[method-assign]  # a driver that only ever reverses
-            rows_by_share[share], _ = run_episode(env, run, [])
-        finally:
-            env.close()
-    assert {r["action"] for r in rows_by_share[0.0]} == {"backward"}
-    taught = rows_by_share[1.0]
-    assert len(taught) > 10 and "backward" not in {r["action"] for r in taught}  # the expert never reverses
-    assert {r["action"] for r in taught} & {"forward", "right_0.05", "left_0.05"}
-    cfg = TrainConfig(task="navigation", traffic=["regular"], teacher_share=0.5, brake_gate_steps=50, r_hazard=20.0)
-    assert cfg.driver_config().teacher_share == 0.5 and cfg.gate_config("models/brl_nav/seed_0").teacher_share == 0.0
 
 
 def test_a_brake_gate_drives_over_a_shipped_member_set() -> None:

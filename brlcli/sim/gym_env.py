@@ -300,8 +300,9 @@ class DrivingEnv(gym.Env):
 
     def expert_action(self) -> int:
         """The index of the action nearest the privileged expert's control at the last observation (outside the
-        paper: a teacher for `brl train`'s `teacher_share`): `stop` where the set has it and the expert wants to
-        stand still (a hazard within its stopping gap, or the goal; `brl bench --agent oracle --stop standstill`),
+        paper: the teacher of `brl train`'s `r_teacher` and of scripts/state_imitation_evidence.py): `stop` where
+        the set has it and the expert wants to stand still (a hazard within its stopping gap, or the goal; `brl
+        bench --agent oracle --stop standstill`),
         else the forward-driving primitive whose steering is nearest the expert's (the oracle's quantisation). Not
         every braking of the expert: it also brakes to slow down for turns, which the 30 numbers cannot tell from
         standing (they carry no speed), so a stop learned there would hold a standing car."""
