@@ -46,6 +46,7 @@ RETIRED_CONFIG: dict[str, Retired] = {
     "gate_scale": Retired(1.0, "docs/navigation-study.md section 12.9, rows gate_ghost_s10_*", "618b968"),
     "gate_branches": Retired(False, "docs/navigation-study.md section 12.9, row gate_ghost_branches_p0", "e082171"),
     "teacher_share": Retired(0.0, "docs/navigation-study.md section 12.16, row teach50", "48cb77b"),
+    "r_teacher": Retired(0.0, "docs/navigation-study.md section 12.16, rows of the teacher's reward", "5bff48b"),
 }
 """Retired keys of the training configuration (`brl train`, `brl sweep` grids)."""
 

@@ -52,15 +52,9 @@ TRAFFIC_LOG_COLUMNS = ("r_hazard", "hazard_gap_m", "crashed", "traffic")  # r_ha
 """Columns log.csv adds for a run with traffic or the hazard reward (outside the paper)."""
 
 
-TEACHER_LOG_COLUMNS = ("r_teacher", "expert_action")
-"""Columns log.csv adds for a run with the teacher reward (outside the paper)."""
-
-
 def log_columns(cfg: TrainConfig) -> tuple[str, ...]:
-    """The log.csv columns of a run: LOG_COLUMNS, TRAFFIC_LOG_COLUMNS with traffic or the hazard reward and
-    TEACHER_LOG_COLUMNS with the teacher reward."""
-    return LOG_COLUMNS + (TRAFFIC_LOG_COLUMNS if cfg.traffic or cfg.r_hazard or cfg.r_stand else ()) + \
-        (TEACHER_LOG_COLUMNS if cfg.r_teacher else ())
+    """The log.csv columns of a run: LOG_COLUMNS, and TRAFFIC_LOG_COLUMNS with traffic or the hazard reward."""
+    return LOG_COLUMNS + (TRAFFIC_LOG_COLUMNS if cfg.traffic or cfg.r_hazard or cfg.r_stand else ())
 CHECKPOINT_VERSION = 1
 RESTART_CHECKS = (1 / 3, 2 / 3)
 """Fractions of an attempt's learning steps after which the trap test of `TrainConfig.restart_below` runs (at the
@@ -551,10 +545,7 @@ def log_row(run: Run, decision: int, action: int, reward: float, learned: LearnS
             "r_wrong_turn": terms.get("wrong_turn", 0.0),
             "r_hazard": terms.get("hazard", 0.0) + terms.get("stand", 0.0),
             "hazard_gap_m": min(float(info.get("hazard_gap_m", np.inf)), 1e3),
-            "crashed": int(info.get("crashed", False)), "traffic": info.get("traffic", ""),
-            "r_teacher": terms.get("teacher", 0.0),
-            "expert_action": ACTION_SET_NAMES[run.cfg.env_actions][info["expert_action"]]
-            if info.get("expert_action", -1) >= 0 else ""}
+            "crashed": int(info.get("crashed", False)), "traffic": info.get("traffic", "")}
 
 
 def _format(v: Any) -> str:
@@ -645,7 +636,7 @@ def make_env(cfg: TrainConfig) -> DrivingEnv:
                       junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None,
                       actions=cfg.env_actions, traffic=tuple(cfg.traffic), hazard=cfg.hazard_reward(), state=cfg.state,
                       r_stand=cfg.r_stand, road_user_contact=not cfg.ghost_traffic,
-                      privileged_brake_m=cfg.privileged_brake_m, r_teacher=cfg.r_teacher)
+                      privileged_brake_m=cfg.privileged_brake_m)
 
 
 def greedy_policy(model: Any, task: str, setting: str, labels: Callable[[np.ndarray], np.ndarray] | None,

@@ -129,8 +129,6 @@ class TrainConfig:
     privileged_brake_m: float = 0.0  # outside the paper, > 0: in traffic, the training environment takes the stop
     # primitive wherever the privileged hazard gap on the route is under this (m), and the agent does not learn from
     # those decisions (a driver learns its lanes among road users with a teacher's brake; a brake gate over it stops)
-    r_teacher: float = 0.0  # outside the paper, > 0: a navigation agent's reward adds -r_teacher x the distance of
-    # its action from the privileged expert's nearest action at that state (0 same, 1 stop vs go; DrivingEnv.step)
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
     # driver/model.npz; or an existing navigation model.npz or member set, then only the gate is trained)
 
@@ -182,11 +180,6 @@ class TrainConfig:
         if not isinstance(self.ghost_traffic, bool) or (self.ghost_traffic and not self.traffic):
             raise BrlInputError("ghost_traffic is true or false and needs traffic levels (e.g. --set "
                                 "'traffic=[\"regular\",\"dense\"]')")
-        if isinstance(self.r_teacher, bool) or not isinstance(self.r_teacher, int | float) or self.r_teacher < 0:
-            raise BrlInputError(f"r_teacher must be >= 0, got {self.r_teacher!r}")
-        if self.r_teacher and (self.task != "navigation" or self.driver_model is not None):
-            raise BrlInputError("r_teacher trains a navigation agent against the expert: it needs --task navigation "
-                                "and no driver_model")
         if isinstance(self.privileged_brake_m, bool) or not isinstance(self.privileged_brake_m, int | float) or \
                 self.privileged_brake_m < 0:
             raise BrlInputError(f"privileged_brake_m must be a distance >= 0 (m), got {self.privileged_brake_m!r}")
@@ -242,7 +235,7 @@ class TrainConfig:
     def gate_config(self, driver_model: str) -> TrainConfig:
         """The configuration of a gated run's gate: `brake_gate_steps` learning steps over the frozen driver."""
         return replace(self, steps=self.brake_gate_steps, brake_gate_steps=0, driver_model=driver_model,
-                       ghost_traffic=False, privileged_brake_m=0.0, r_teacher=0.0,
+                       ghost_traffic=False, privileged_brake_m=0.0,
                        committee=1, member=0, restart_below=None, branch_restart_below=None, curve_every=0)
 
     def to_dict(self) -> dict[str, Any]:

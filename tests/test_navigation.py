@@ -410,30 +410,13 @@ def test_a_privileged_brake_drivers_gate_learns_without_it() -> None:
     assert cfg.gate_config("models/brl_nav/seed_0").privileged_brake_m == 0.0
 
 
-@pytest.mark.parametrize("overrides, message", [
-    ({"r_teacher": -2.0}, "r_teacher must be >= 0"),
-    ({"task": "lane-keeping"}, "needs --task navigation and no driver_model"),
-])
-def test_teacher_reward_options_are_checked_in_one_line(overrides: dict, message: str) -> None:
-    with pytest.raises(BrlInputError, match=message):
-        TrainConfig(**{**{"task": "navigation", "r_teacher": 10.0}, **overrides})
-
-
-def test_a_teacher_rewarded_run_logs_the_teacher() -> None:
-    from brlcli.train import TEACHER_LOG_COLUMNS, log_columns
-
-    cfg = TrainConfig(task="navigation", r_teacher=10.0, actions="fine_stop")
-    assert set(TEACHER_LOG_COLUMNS) <= set(log_columns(cfg))
-    assert not set(TEACHER_LOG_COLUMNS) & set(log_columns(TrainConfig(task="navigation")))
-
-
-def test_a_teacher_rewarded_braking_model_says_it_has_the_stop_primitive(tmp_path: Path) -> None:
+def test_a_fine_braking_model_says_it_has_the_stop_primitive(tmp_path: Path) -> None:
     from brlcli.policy import BRLPolicy
 
     cfg = TrainConfig(task="navigation", steps=60, seed=0, evaluate=False, actions="fine_stop", traffic=["regular"],
-                      r_teacher=10.0, committee=1)
-    train_run(cfg, tmp_path / "teacher")
-    policy = BRLPolicy("brl", str(tmp_path / "teacher" / "model.npz"))
+                      r_hazard=20.0, committee=1)
+    train_run(cfg, tmp_path / "fine_stop")
+    policy = BRLPolicy("brl", str(tmp_path / "fine_stop" / "model.npz"))
     assert len(policy.actions) == 9 and "fine steering, stop primitive" in policy.setting
 
 

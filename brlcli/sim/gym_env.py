@@ -82,7 +82,7 @@ class DrivingEnv(gym.Env):
                  junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None,
                  actions: str = "paper", traffic: tuple[str, ...] = (), hazard: HazardRewardParams | None = None,
                  state: str = "paper", r_stand: float = 0.0, road_user_contact: bool = True,
-                 privileged_brake_m: float = 0.0, r_teacher: float = 0.0) -> None:
+                 privileged_brake_m: float = 0.0) -> None:
         super().__init__()
         try:
             self.check_traffic_options(actions, traffic, state, r_stand)
@@ -93,9 +93,6 @@ class DrivingEnv(gym.Env):
         self.actions = ACTION_SETS[actions]
         self.r_stand = float(r_stand)  # outside the paper: the cost per decision of standing where nothing is ahead
         self.privileged_brake_m = float(privileged_brake_m)  # outside the paper: see `step`
-        if isinstance(r_teacher, bool) or not isinstance(r_teacher, int | float) or not r_teacher >= 0:
-            raise BrlInputError(f"r_teacher must be >= 0, got {r_teacher!r}")
-        self.r_teacher = float(r_teacher)  # outside the paper: see `step`
         self.state_option = state
         self.hazard = hazard
         self.traffic_levels = tuple(traffic)
@@ -219,15 +216,10 @@ class DrivingEnv(gym.Env):
         """Hold the action's control for 7 frames, render the last one, and score it. With `privileged_brake_m` (in
         traffic; outside the paper) the control is the stop primitive instead wherever the privileged hazard gap
         along the route (road users predicted 0-2 s ahead, the expert's test) is under that distance, and
-        info["overridden"] says so: a driver learns among road users with a teacher's brake. With `r_teacher`
-        (outside the paper; a privileged reward, the agent's input unchanged) the reward adds -r_teacher times the
-        action's distance from the expert's nearest action at the decision's state (`expert_action`,
-        `action_distance`; info["expert_action"]): the agent is scored against a teacher at the states it drives
-        itself to, as DAgger labels them."""
+        info["overridden"] says so: a driver learns among road users with a teacher's brake."""
         if not self.action_space.contains(action):
             raise BrlInputError(f"action {action!r} is not one of 0..{len(self.actions) - 1}")
         control = self.actions[int(action)]
-        expert = self.expert_action() if self.r_teacher else -1
         overridden = False
         if self.privileged_brake_m > 0 and self.traffic_levels:
             lm = self._last_m
@@ -250,9 +242,6 @@ class DrivingEnv(gym.Env):
             gap = hazard_gap_m(self.world.traffic, self.route, m.x, m.y, m.yaw_deg, self.hazard.predict_times_s)
             v_target = self.hazard.target_kmh(gap, vt)
             terms = hazard_terms(m.forward_speed_kmh, gap, terms, self.reward_params, self.hazard)
-        if self.r_teacher:
-            teacher = -self.r_teacher * self.action_distance(int(action), expert)
-            terms = {**terms, "teacher": teacher, "total": terms["total"] + teacher}
         if self.r_stand and v_target >= vt and abs(m.forward_speed_kmh) < STUCK_SPEED_KMH:
             terms = {**terms, "stand": -self.r_stand, "total": terms["total"] - self.r_stand}
         s, lateral = self.route.project(m.x, m.y)
@@ -275,8 +264,7 @@ class DrivingEnv(gym.Env):
                                         or left_lane or wrong_turn or crashed)
         info = {"reward_terms": terms, "measurements": m.as_dict(), "route_s_m": s, "collided": collided,
                 "left_lane": left_lane, "wrong_turn": wrong_turn, "command": int(self.route.command_at(s)),
-                "crashed": crashed, "hazard_gap_m": gap, "traffic": self.traffic_level, "overridden": overridden,
-                "expert_action": expert}
+                "crashed": crashed, "hazard_gap_m": gap, "traffic": self.traffic_level, "overridden": overridden}
         return obs, float(terms["total"]), bool(terminated), bool(truncated), info
 
     def action_distance(self, a: int, b: int) -> float:
@@ -300,7 +288,7 @@ class DrivingEnv(gym.Env):
 
     def expert_action(self) -> int:
         """The index of the action nearest the privileged expert's control at the last observation (outside the
-        paper: the teacher of `brl train`'s `r_teacher` and of scripts/state_imitation_evidence.py): `stop` where
+        paper: the teacher of scripts/state_imitation_evidence.py): `stop` where
         the set has it and the expert wants to stand still (a hazard within its stopping gap, or the goal; `brl
         bench --agent oracle --stop standstill`),
         else the forward-driving primitive whose steering is nearest the expert's (the oracle's quantisation). Not
