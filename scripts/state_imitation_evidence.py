@@ -205,8 +205,9 @@ def main() -> None:
         chunks = [list(range(w, args.episodes, args.workers)) for w in range(args.workers)]
         with ProcessPoolExecutor(args.workers) as pool:
             parts = list(pool.map(_episodes, [(it, c, weights) for c in chunks]))
-        for k in ("x", "y", "traffic", "episode"):
-            data[k].append(np.concatenate([p[k] for p in parts]))
+        order = np.argsort(np.concatenate([p["episode"] for p in parts]), kind="stable")  # episode order, whatever
+        for k in ("x", "y", "traffic", "episode"):  # the number of workers
+            data[k].append(np.concatenate([p[k] for p in parts])[order])
         data["iteration"].append(np.full(len(data["y"][-1]), it))
         goals, crashes = sum(int(p["goals"][0]) for p in parts), sum(int(p["crashes"][0]) for p in parts)
         x, y = np.concatenate(data["x"]), np.concatenate(data["y"])
