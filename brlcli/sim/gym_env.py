@@ -267,6 +267,20 @@ class DrivingEnv(gym.Env):
                 "crashed": crashed, "hazard_gap_m": gap, "traffic": self.traffic_level, "overridden": overridden}
         return obs, float(terms["total"]), bool(terminated), bool(truncated), info
 
+    def expert_action(self) -> int:
+        """The index of the action nearest the privileged expert's control at the last observation (outside the
+        paper; the teacher of scripts/state_imitation_evidence.py): `stop` where the set has it and the expert wants
+        to stand still (a hazard within its stopping gap, or the goal; the oracle's `--stop standstill`), else the
+        forward-driving primitive whose steering is nearest the expert's (the oracle's quantisation). Not every
+        braking of the expert: it also brakes to slow down for turns, which the 30 numbers cannot tell from standing
+        (they carry no speed), so a stop learned there would hold a standing car."""
+        pilot = Autopilot(self.world, self.route, np.random.default_rng(0))
+        if STOP in self.actions and pilot.must_stop(self._last_m):
+            return self.actions.index(STOP)
+        expert = pilot.expert(self._last_m)
+        forward = [i for i, a in enumerate(self.actions) if a.throttle > 0.0 and not a.reverse]
+        return min(forward, key=lambda i: abs(self.actions[i].steer - expert.steer))
+
     def action_distance(self, a: int, b: int) -> float:
         """How far action a is from action b, in [0, 1]: 0 for the same primitive, 1 for stop against driving or
         reverse against forward, else their steering difference over 0.4 (the paper's turn), at most 1."""
@@ -285,18 +299,3 @@ class DrivingEnv(gym.Env):
         """Release the worlds' physics clients."""
         for w in self._worlds.values():
             w.close()
-
-    def expert_action(self) -> int:
-        """The index of the action nearest the privileged expert's control at the last observation (outside the
-        paper: the teacher of scripts/state_imitation_evidence.py): `stop` where
-        the set has it and the expert wants to stand still (a hazard within its stopping gap, or the goal; `brl
-        bench --agent oracle --stop standstill`),
-        else the forward-driving primitive whose steering is nearest the expert's (the oracle's quantisation). Not
-        every braking of the expert: it also brakes to slow down for turns, which the 30 numbers cannot tell from
-        standing (they carry no speed), so a stop learned there would hold a standing car."""
-        pilot = Autopilot(self.world, self.route, np.random.default_rng(0))
-        if STOP in self.actions and pilot.must_stop(self._last_m):
-            return self.actions.index(STOP)
-        expert = pilot.expert(self._last_m)
-        forward = [i for i, a in enumerate(self.actions) if a.throttle > 0.0 and not a.reverse]
-        return min(forward, key=lambda i: abs(self.actions[i].steer - expert.steer))
