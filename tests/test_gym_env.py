@@ -1,5 +1,7 @@
 """The Gymnasium environment over a brl world."""
 
+from typing import Any
+
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
@@ -100,6 +102,16 @@ def test_the_stop_primitive_brakes_to_a_standstill(traffic_env: DrivingEnv) -> N
     assert abs(info["measurements"]["forward_speed_kmh"]) < 0.5
 
 
+def clear_road_users(env: DrivingEnv, pedestrians: bool = True) -> Any:
+    """Hold every vehicle (and pedestrian) of the env's world far away; returns its traffic."""
+    t = env.world.traffic
+    for i in range(t.n_vehicles):
+        t.hold_vehicle(i, -1e4 - 10 * i, -1e4, 0.0)
+    for i in range(t.n_pedestrians if pedestrians else 0):
+        t.hold_pedestrian(i, 1e4 + 10 * i, 1e4)
+    return t
+
+
 def test_a_privileged_brake_stops_the_car_at_a_hazard_and_says_so() -> None:
     from brlcli.reward import RouteRewardParams
 
@@ -107,11 +119,7 @@ def test_a_privileged_brake_stops_the_car_at_a_hazard_and_says_so() -> None:
                      privileged_brake_m=8.0)
     try:
         env.reset(seed=2)
-        t = env.world.traffic
-        for i in range(t.n_vehicles):
-            t.hold_vehicle(i, -1e4 - 10 * i, -1e4, 0.0)
-        for i in range(t.n_pedestrians):
-            t.hold_pedestrian(i, 1e4 + 10 * i, 1e4)
+        t = clear_road_users(env)
         *_, info = env.step(0)
         assert not info["overridden"]  # nothing near: the agent's forward
         m = env.world.ego
@@ -145,11 +153,7 @@ def test_the_expert_action_drives_a_route_and_brakes_where_the_set_has_stop() ->
                      route_reward=RouteRewardParams())
     try:
         env.reset(seed=2)
-        t = env.world.traffic
-        for i in range(t.n_vehicles):
-            t.hold_vehicle(i, -1e4 - 10 * i, -1e4, 0.0)
-        for i in range(t.n_pedestrians):
-            t.hold_pedestrian(i, 1e4 + 10 * i, 1e4)
+        t = clear_road_users(env)
         env.step(0)
         assert env.expert_action() != ACTION_SETS["fine_stop"].index(STOP)
         m = env.world.ego
@@ -181,11 +185,7 @@ def test_episodes_draw_their_traffic_level(traffic_env: DrivingEnv) -> None:
 
 def test_a_car_ahead_lowers_the_target_and_waiting_for_it_is_not_being_stuck(traffic_env: DrivingEnv) -> None:
     obs, info = traffic_env.reset(seed=2)
-    t = traffic_env.world.traffic
-    for i in range(t.n_vehicles):
-        t.hold_vehicle(i, -1e4 - 10 * i, -1e4, 0.0)
-    for i in range(t.n_pedestrians):
-        t.hold_pedestrian(i, 1e4 + 10 * i, 1e4)
+    t = clear_road_users(traffic_env)
     m = traffic_env.world.ego
     s, _ = traffic_env.route.project(m.x_m, m.y_m)
     x, y, yaw = traffic_env.route.pose_at(s + 9.0)
@@ -200,9 +200,7 @@ def test_a_car_ahead_lowers_the_target_and_waiting_for_it_is_not_being_stuck(tra
 
 def test_hitting_a_road_user_ends_a_traffic_episode(traffic_env: DrivingEnv) -> None:
     traffic_env.reset(seed=2)
-    t = traffic_env.world.traffic
-    for i in range(t.n_vehicles):
-        t.hold_vehicle(i, -1e4 - 10 * i, -1e4, 0.0)
+    t = clear_road_users(traffic_env, pedestrians=False)
     m = traffic_env.world.ego
     s, _ = traffic_env.route.project(m.x_m, m.y_m)
     x, y, yaw = traffic_env.route.pose_at(s + 12.0)
