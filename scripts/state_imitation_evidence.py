@@ -93,13 +93,13 @@ every component and an action's value falls 2 below its target (the navigation p
 those, 71 components and 72 % held-out agreement)."""
 
 
-def fit_mixture(x: np.ndarray, y: np.ndarray, seed: int) -> CommandAgent:
+def fit_mixture(x: np.ndarray, y: np.ndarray, seed: int, actions: str = ACTIONS) -> CommandAgent:
     """A command-conditioned Bayesian mixture fitted by Algorithm 1's own learning step to the teacher's reward of
     every action at every recorded state (-MIXTURE_TEACHER x `DrivingEnv.action_distance` from the label; no
     bootstrapping): the mixture's best imitation of the labels, one pass in a seeded order."""
-    cfg = TrainConfig(task="navigation", actions=ACTIONS)
-    agent = CommandAgent(STATE_DIM, len(ACTION_SET_NAMES[ACTIONS]), replace(cfg.agent_params(), **MIXTURE_PARAMS))
-    env = DrivingEnv(town="town01", actions=ACTIONS)
+    cfg = TrainConfig(task="navigation", actions=actions)
+    agent = CommandAgent(STATE_DIM, len(ACTION_SET_NAMES[actions]), replace(cfg.agent_params(), **MIXTURE_PARAMS))
+    env = DrivingEnv(town="town01", actions=actions)
     n = len(env.actions)
     distance = np.array([[env.action_distance(a, b) for b in range(n)] for a in range(n)])
     env.close()
@@ -120,17 +120,17 @@ def greedy(model: Imitator | CommandAgent, state: np.ndarray, command: int) -> i
         return int(model(torch.as_tensor(features(state, command)[None], dtype=torch.float32)).argmax())
 
 
-def _episodes(args: tuple[int, list[int], dict | str | None]) -> dict[str, np.ndarray]:
+def _episodes(args: tuple[int, list[int], dict | str | None, str]) -> dict[str, np.ndarray]:
     """Drive episodes of one iteration (the classifier drives from iteration 1 on) and record the expert's labels."""
-    iteration, episodes, weights = args
+    iteration, episodes, weights, actions = args
     model: Imitator | CommandAgent | None = None
     if isinstance(weights, str):
         model = CommandAgent.load(weights)
     elif weights is not None:
-        model = Imitator(STATE_DIM + len(COMMANDS), len(ACTION_SET_NAMES[ACTIONS]))
+        model = Imitator(STATE_DIM + len(COMMANDS), len(ACTION_SET_NAMES[actions]))
         model.load_state_dict({k: torch.as_tensor(v) for k, v in weights.items()})
         model.eval()
-    env = DrivingEnv(routes="navigation", kinds=NAV_KINDS, actions=ACTIONS, traffic=("empty", "regular", "dense"),
+    env = DrivingEnv(routes="navigation", kinds=NAV_KINDS, actions=actions, traffic=("empty", "regular", "dense"),
                      route_reward=RouteRewardParams())
     rows: dict[str, list] = {"x": [], "y": [], "traffic": [], "episode": []}
     goals = crashes = 0
@@ -186,12 +186,14 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=4, help="DAgger iterations after the expert's own")
     parser.add_argument("--episodes", type=int, default=200, help="training episodes per iteration")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--actions", choices=("fine_stop", "fine"), default=ACTIONS,
+                        help="the action set imitated: the fine set and stop, or the fine set alone (a gate's driver)")
     parser.add_argument("--learner", choices=("mlp", "mixture"), default="mlp",
                         help="the imitator: an MLP, or a Bayesian mixture fitted by Algorithm 1's learning step")
     parser.add_argument("--out", type=Path, required=True, help="directory for data.npz, imitator.pt, figures.json")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    n_out = len(ACTION_SET_NAMES[ACTIONS])
+    n_out = len(ACTION_SET_NAMES[args.actions])
     data: dict[str, list[np.ndarray]] = {"x": [], "y": [], "traffic": [], "episode": [], "iteration": []}
     log = []
     model: Imitator | None = None
@@ -204,7 +206,7 @@ def main() -> None:
             weights = {k: v.numpy() for k, v in model.state_dict().items()}
         chunks = [list(range(w, args.episodes, args.workers)) for w in range(args.workers)]
         with ProcessPoolExecutor(args.workers) as pool:
-            parts = list(pool.map(_episodes, [(it, c, weights) for c in chunks]))
+            parts = list(pool.map(_episodes, [(it, c, weights, args.actions) for c in chunks]))
         order = np.argsort(np.concatenate([p["episode"] for p in parts]), kind="stable")  # episode order, whatever
         for k in ("x", "y", "traffic", "episode"):  # the number of workers
             data[k].append(np.concatenate([p[k] for p in parts])[order])
@@ -216,7 +218,10 @@ def main() -> None:
             xi = torch.as_tensor(data["x"][-1], dtype=torch.float32)
             agree = float(np.mean([greedy(model, xi[i, :STATE_DIM].numpy(), COMMANDS[int(xi[i, STATE_DIM:].argmax())])
                                    == data["y"][-1][i] for i in range(len(xi))]))
-        model = fit_mixture(x, y, seed=it) if args.learner == "mixture" else fit(x, y, n_out, seed=it)
+        if args.learner == "mixture":
+            model = fit_mixture(x, y, seed=it, actions=args.actions)
+        else:
+            model = fit(x, y, n_out, seed=it)
         row = {"iteration": it, "driver": "expert" if it == 0 else "imitator", "episodes": args.episodes,
                "goals": goals, "crashes": crashes, "decisions": len(data["y"][-1]),
                "agreement_on_own_states": agree, "data": len(y)}
@@ -236,8 +241,10 @@ def main() -> None:
         return greedy(imitator, state, command)
 
     benches = {
-        "imitator": _bench(StatePolicy("imitator", "imitation (diagnostic)", act, uses_command=True, actions=ACTIONS)),
-        "expert_restricted": _bench(OraclePolicy(turn_steer=[0.4, 0.15, 0.05], stop="standstill")),
+        "imitator": _bench(StatePolicy("imitator", "imitation (diagnostic)", act, uses_command=True,
+                                       actions=args.actions)),
+        "expert_restricted": _bench(OraclePolicy(turn_steer=[0.4, 0.15, 0.05],
+                                                       stop="standstill" if args.actions == "fine_stop" else "never")),
     }
     for name, figs in benches.items():
         lane = sum(f["otherlane_steps"] for f in figs.values()) / max(sum(f["steps"] for f in figs.values()), 1)
