@@ -24,7 +24,7 @@ from brlcli.retired import RETIRED_CONFIG, retired_message
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.settings import setting_name
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import ACTION_SETS, ACTIONS, FRAMES_PER_DECISION, GATE_DRIVER_ACTIONS, STOP
+from brlcli.sim.gym_env import ACTION_SETS, ACTIONS, FRAMES_PER_DECISION, GATE_DRIVER_ACTIONS, STOP, nearest_forward
 from brlcli.sim.vehicle import Control
 
 if TYPE_CHECKING:
@@ -276,7 +276,6 @@ class OraclePolicy(AutopilotPolicy):
         forward, right = ACTIONS[0], ACTIONS[1]
         self._primitives = (forward, *(Control(steer=sign * float(t), throttle=right.throttle)
                                        for t in steers for sign in (1.0, -1.0)))
-        self._steers = np.array([p.steer for p in self._primitives])
         if stop not in ORACLE_STOPS:
             raise BrlInputError(f"oracle stop must be one of {', '.join(ORACLE_STOPS)}, got {stop!r}")
         self._stop = stop
@@ -291,6 +290,6 @@ class OraclePolicy(AutopilotPolicy):
             return STOP_ACTION
         if self._backward_brake and expert.brake > 0.0 and obs.measurements.forward_speed_kmh > 0.0:
             return ACTIONS[3]
-        return self._primitives[int(np.argmin(np.abs(self._steers - expert.steer)))]
+        return self._primitives[nearest_forward(self._primitives, expert.steer)]
 
 

@@ -40,7 +40,7 @@ from brlcli.features import STATE_DIM
 from brlcli.npzio import save_npz
 from brlcli.provenance import atomic_write_json, provenance
 from brlcli.reward import RouteRewardParams
-from brlcli.sim.gym_env import ACTION_SET_NAMES, DrivingEnv
+from brlcli.sim.gym_env import ACTION_SET_NAMES, ACTION_SETS, DrivingEnv, action_distance
 from brlcli.sim.roadnet import Command
 from brlcli.trainconfig import TrainConfig
 
@@ -85,6 +85,8 @@ def fit(x: np.ndarray, y: np.ndarray, n_out: int, seed: int, epochs: int = 30) -
     return model.eval()
 
 
+_GREEDY_RNG = np.random.default_rng(0)
+"""Greedy acting never draws from it (`brlcli.policy.greedy_command_brl`'s rule)."""
 MIXTURE_TEACHER = 20.0
 """The teacher's reward scale for the mixture imitator: -MIXTURE_TEACHER x the action's distance from the label."""
 MIXTURE_PARAMS = {"rho_init": 0.03, "rho_final": 0.03, "T_l": -2.0, "T_u": -1.0}
@@ -95,14 +97,13 @@ those, 71 components and 72 % held-out agreement)."""
 
 def fit_mixture(x: np.ndarray, y: np.ndarray, seed: int, actions: str = ACTIONS) -> CommandAgent:
     """A command-conditioned Bayesian mixture fitted by Algorithm 1's own learning step to the teacher's reward of
-    every action at every recorded state (-MIXTURE_TEACHER x `DrivingEnv.action_distance` from the label; no
+    every action at every recorded state (-MIXTURE_TEACHER x `action_distance` from the label; no
     bootstrapping): the mixture's best imitation of the labels, one pass in a seeded order."""
     cfg = TrainConfig(task="navigation", actions=actions)
     agent = CommandAgent(STATE_DIM, len(ACTION_SET_NAMES[actions]), replace(cfg.agent_params(), **MIXTURE_PARAMS))
-    env = DrivingEnv(town="town01", actions=actions)
-    n = len(env.actions)
-    distance = np.array([[env.action_distance(a, b) for b in range(n)] for a in range(n)])
-    env.close()
+    controls = ACTION_SETS[actions]
+    n = len(controls)
+    distance = np.array([[action_distance(a, b) for b in controls] for a in controls])
     commands = np.array(COMMANDS)[x[:, STATE_DIM:].argmax(1)]
     for i in np.random.default_rng(seed).permutation(len(y)):
         state, branch = x[i, :STATE_DIM].astype(np.float64), agent.branch(int(commands[i]))
@@ -114,8 +115,7 @@ def fit_mixture(x: np.ndarray, y: np.ndarray, seed: int, actions: str = ACTIONS)
 def greedy(model: Imitator | CommandAgent, state: np.ndarray, command: int) -> int:
     """The imitator's action: the classifier's most likely one, or the mixture's greedy one."""
     if isinstance(model, CommandAgent):
-        return model.act(np.asarray(state, dtype=np.float64)[:STATE_DIM], command, np.random.default_rng(0),
-                         greedy=True)
+        return model.act(np.asarray(state, dtype=np.float64)[:STATE_DIM], command, _GREEDY_RNG, greedy=True)
     with torch.no_grad():
         return int(model(torch.as_tensor(features(state, command)[None], dtype=torch.float32)).argmax())
 

@@ -166,16 +166,16 @@ def test_the_expert_action_drives_a_route_and_brakes_where_the_set_has_stop() ->
 
 
 def test_the_action_distance_is_zero_for_the_same_action_and_one_for_stop_against_driving() -> None:
-    env = DrivingEnv(town="town01", actions="fine_stop")
-    try:
-        names = ("forward", "right", "left", "backward", "right_0.15", "left_0.15", "right_0.05", "left_0.05", "stop")
-        d = {n: i for i, n in enumerate(names)}
-        assert env.action_distance(d["forward"], d["forward"]) == 0.0
-        assert env.action_distance(d["stop"], d["forward"]) == env.action_distance(d["backward"], d["left"]) == 1.0
-        assert env.action_distance(d["right_0.05"], d["forward"]) == pytest.approx(0.125)
-        assert env.action_distance(d["right"], d["left"]) == 1.0
-    finally:
-        env.close()
+    from brlcli.sim.gym_env import ACTION_SET_NAMES, ACTION_SETS, action_distance, nearest_forward
+
+    c = dict(zip(ACTION_SET_NAMES["fine_stop"], ACTION_SETS["fine_stop"], strict=True))
+    assert action_distance(c["forward"], c["forward"]) == 0.0
+    assert action_distance(c["stop"], c["forward"]) == action_distance(c["backward"], c["left"]) == 1.0
+    assert action_distance(c["right_0.05"], c["forward"]) == pytest.approx(0.125)
+    assert action_distance(c["right"], c["left"]) == 1.0
+    names = ACTION_SET_NAMES["fine_stop"]
+    assert names[nearest_forward(ACTION_SETS["fine_stop"], 0.07)] == "right_0.05"  # never stop nor backward
+    assert names[nearest_forward(ACTION_SETS["fine_stop"], -1.0)] == "left"
 
 
 def test_episodes_draw_their_traffic_level(traffic_env: DrivingEnv) -> None:

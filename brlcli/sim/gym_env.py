@@ -55,6 +55,23 @@ def route_timeout_s(length_m: float) -> float:
     return length_m / 1000.0 / 10.0 * 3600.0 + 10.0
 
 
+def nearest_forward(actions: tuple[Control, ...], steer: float) -> int:
+    """The index of the forward-driving primitive (throttle, not reverse) whose steering is nearest `steer` (the first
+    of equals): how the oracle and `DrivingEnv.expert_action` quantise the expert's steering."""
+    forward = [i for i, a in enumerate(actions) if a.throttle > 0.0 and not a.reverse]
+    return min(forward, key=lambda i: abs(actions[i].steer - steer))
+
+
+def action_distance(a: Control, b: Control) -> float:
+    """How far primitive a is from primitive b, in [0, 1]: 0 for the same one, 1 for stop against driving or reverse
+    against forward, else their steering difference over 0.4 (the paper's turn), at most 1."""
+    if a == b:
+        return 0.0
+    if (a == STOP) != (b == STOP) or a.reverse != b.reverse:
+        return 1.0
+    return min(1.0, abs(a.steer - b.steer) / 0.4)
+
+
 class DrivingEnv(gym.Env):
     """Lane keeping on a town's routes: observation = 30-vector state, 4 discrete actions, the paper's reward.
 
@@ -277,19 +294,7 @@ class DrivingEnv(gym.Env):
         pilot = Autopilot(self.world, self.route, np.random.default_rng(0))
         if STOP in self.actions and pilot.must_stop(self._last_m):
             return self.actions.index(STOP)
-        expert = pilot.expert(self._last_m)
-        forward = [i for i, a in enumerate(self.actions) if a.throttle > 0.0 and not a.reverse]
-        return min(forward, key=lambda i: abs(self.actions[i].steer - expert.steer))
-
-    def action_distance(self, a: int, b: int) -> float:
-        """How far action a is from action b, in [0, 1]: 0 for the same primitive, 1 for stop against driving or
-        reverse against forward, else their steering difference over 0.4 (the paper's turn), at most 1."""
-        ca, cb = self.actions[a], self.actions[b]
-        if a == b:
-            return 0.0
-        if (ca == STOP) != (cb == STOP) or ca.reverse != cb.reverse:
-            return 1.0
-        return min(1.0, abs(ca.steer - cb.steer) / 0.4)
+        return nearest_forward(self.actions, pilot.expert(self._last_m).steer)
 
     def render(self) -> np.ndarray | None:
         """The last rendered RGB frame."""
