@@ -13,6 +13,8 @@ Layout of a run directory:
     checkpoint/      agent + generator state at the last finished episode (resume restarts from there)
     learning_curve.csv  greedy evaluations every `curve_every` steps (when set)
 A committee run (`committee` > 1) holds its members' runs in member_<k>/ and the committee's model.npz and summary.
+An imitation run (`learning = "imitation"`, `brlcli.imitation`) has iterations.csv and iterations/ instead of log.csv
+and checkpoint/.
 """
 
 from __future__ import annotations
@@ -296,6 +298,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
         return _train_gated(cfg, run_dir, progress)
     if cfg.committee > 1:
         return _train_committee(cfg, run_dir, resume, progress)
+    if cfg.learning == "imitation":
+        return _train_imitation(cfg, run_dir, progress)
     env = make_env(cfg)
     checkpoint = Checkpoint(run_dir)
     run = checkpoint.load(cfg) if resume else None
@@ -327,6 +331,24 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     atomic_write_json(run_dir / "summary.json", record)
     if reporter:
         reporter.finish(run)
+    return record
+
+
+def _train_imitation(cfg: TrainConfig, run_dir: Path, progress: Callable[[Progress], None] | None) -> dict[str, Any]:
+    """Train (or resume) a navigation model by imitation (`brlcli.imitation`), evaluate it, write summary.json."""
+    from brlcli.imitation import train_imitation
+
+    def report(done: int, total: int, agreement: float, components: int, finished: bool = False) -> None:
+        if progress is not None:  # the bar's reward column shows the driver's agreement with the expert
+            progress(Progress(cfg.seed, done, total, done, agreement, 0.0, components, finished, cfg.member))
+
+    record = train_imitation(cfg, run_dir, make_env, report)
+    summary = record["summary"]
+    if cfg.evaluate:
+        summary["eval"] = evaluate_greedy(CommandAgent.load(run_dir / "model.npz"), cfg)
+    atomic_write_json(run_dir / "summary.json", record)
+    report(summary["episodes"], summary["episodes"], summary["imitation"]["last_agreement"] or 0.0,
+           summary["components"], finished=True)
     return record
 
 

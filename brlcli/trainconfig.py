@@ -61,6 +61,9 @@ restart per branch (follow -5, turns -9), which restarts only a trapped branch; 
 models/brl_nav (the size chosen on nav_validation, docs/navigation-study.md section 9; `--set committee=1` trains
 single models; a lane-keeping method's committee is not the navigation preset's)."""
 
+LEARNING = ("td", "imitation")
+"""How a navigation model learns (`TrainConfig.learning`): TD learning on the reward (the paper's), or imitation."""
+
 DEFAULT_AGENT_OVERRIDES: dict[str, Any] = {"init_scatter": 1e-3}
 """Agent parameters a training run sets beyond `BRLParams()` (none of them is in the paper's Table I): the NIW
 prior scatter S0 = 1e-3 I, on the scale of the 30-number state, instead of the reference code's 0.1 I
@@ -129,6 +132,11 @@ class TrainConfig:
     privileged_brake_m: float = 0.0  # outside the paper, > 0: in traffic, the training environment takes the stop
     # primitive wherever the privileged hazard gap on the route is under this (m), and the agent does not learn from
     # those decisions (a driver learns its lanes among road users with a teacher's brake; a brake gate over it stops)
+    learning: str = "td"  # how the navigation model (a gated run's driver) learns: "td", Algorithm 1 on the reward;
+    # "imitation" (outside the paper, `brlcli.imitation`): DAgger in the same mixture, fitted by Algorithm 1's learning
+    # step to the privileged expert's nearest action of the set (its budget: the two keys below, not `steps`)
+    imitation_iterations: int = 4  # DAgger iterations after the expert's own
+    imitation_episodes: int = 300  # training episodes per iteration
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
     # driver/model.npz; or an existing navigation model.npz or member set, then only the gate is trained)
 
@@ -188,6 +196,25 @@ class TrainConfig:
             raise BrlInputError("privileged_brake_m trains a navigation driver in real traffic: it needs --task "
                                 "navigation and traffic levels, without ghost_traffic or driver_model")
         self._check_gate()
+        self._check_learning()
+
+    def _check_learning(self) -> None:
+        """Imitation's options: a navigation model of its own, none of TD learning's hooks."""
+        if self.learning not in LEARNING:
+            raise BrlInputError(f"unknown learning '{self.learning}'; choose one of {', '.join(LEARNING)}")
+        for name in ("imitation_iterations", "imitation_episodes"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < (0 if "iterations" in name else 1):
+                raise BrlInputError(f"{name} must be an integer >= {0 if 'iterations' in name else 1}, got {value!r}")
+        if self.learning == "td":
+            return
+        if self.task != "navigation" or self.driver_model is not None:
+            raise BrlInputError("learning=imitation trains a navigation model (or a gated run's driver): it needs "
+                                "--task navigation and no driver_model")
+        td_only = [name for name, on in (("curve_every", self.curve_every), ("ghost_traffic", self.ghost_traffic),
+                                         ("privileged_brake_m", self.privileged_brake_m)) if on]
+        if td_only:  # (the trap restarts of a preset simply do not apply: imitation has no reward to test)
+            raise BrlInputError(f"learning=imitation has no TD learning steps: drop {', '.join(td_only)}")
 
     def _check_gate(self) -> None:
         """The brake gate's options: a navigation run with traffic and the hazard reward, a driver's action set."""
@@ -227,15 +254,17 @@ class TrainConfig:
         return GATE_DRIVER_ACTIONS[self.actions] if self.driver_model is not None else self.actions
 
     def driver_config(self) -> TrainConfig:
-        """The configuration of a gated run's driver: the same run on empty roads, without the gate's options."""
-        if self.ghost_traffic or self.privileged_brake_m:  # the driver trains among (ghost) road users, without the
-            return replace(self, brake_gate_steps=0, r_hazard=0.0, r_stand=0.0)  # gate's reward
+        """The configuration of a gated run's driver: the same run without the gate's options, on empty roads unless
+        it learns among (ghost) road users or by imitation of the expert in the run's traffic."""
+        if self.ghost_traffic or self.privileged_brake_m or self.learning == "imitation":  # the driver trains among
+            # (ghost) road users, without the gate's reward
+            return replace(self, brake_gate_steps=0, r_hazard=0.0, r_stand=0.0)
         return replace(self, brake_gate_steps=0, traffic=[], r_hazard=0.0, r_stand=0.0)
 
     def gate_config(self, driver_model: str) -> TrainConfig:
         """The configuration of a gated run's gate: `brake_gate_steps` learning steps over the frozen driver."""
         return replace(self, steps=self.brake_gate_steps, brake_gate_steps=0, driver_model=driver_model,
-                       ghost_traffic=False, privileged_brake_m=0.0,
+                       ghost_traffic=False, privileged_brake_m=0.0, learning="td",
                        committee=1, member=0, restart_below=None, branch_restart_below=None, curve_every=0)
 
     def to_dict(self) -> dict[str, Any]:

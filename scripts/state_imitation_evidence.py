@@ -15,9 +15,8 @@ among road users, the state is enough and the Bayesian learner is the limit; if 
 paper: a diagnostic, not a brl agent. Every random choice is seeded (episode e of iteration i from (i, e); the
 classifier's initialisation and batches from the iteration).
 
-`--learner mixture` makes the imitator a command-conditioned Bayesian mixture (the agent's own model) fitted by
-Algorithm 1's learning step to the teacher's reward of every action at every recorded state (`fit_mixture`):
-whether the agent's function class, rather than its reinforcement learning, can hold such a driver.
+The mixture imitator this script had (`--learner mixture`, docs/navigation-study.md 12.16, commit b46319d) is now
+a recipe of brl itself: `brl train --task navigation --set learning=imitation` (`brlcli.imitation`).
 """
 
 from __future__ import annotations
@@ -30,19 +29,16 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from dataclasses import replace
 
 import numpy as np
 import torch
 
-from brlcli.agent.command import CommandAgent
 from brlcli.features import STATE_DIM
 from brlcli.npzio import save_npz
 from brlcli.provenance import atomic_write_json, provenance
 from brlcli.reward import RouteRewardParams
-from brlcli.sim.gym_env import ACTION_SET_NAMES, ACTION_SETS, DrivingEnv, action_distance
+from brlcli.sim.gym_env import ACTION_SET_NAMES, DrivingEnv
 from brlcli.sim.roadnet import Command
-from brlcli.trainconfig import TrainConfig
 
 ACTIONS = "fine_stop"
 COMMANDS = (int(Command.LANE_FOLLOW), int(Command.TURN_LEFT), int(Command.TURN_RIGHT), int(Command.GO_STRAIGHT))
@@ -85,48 +81,17 @@ def fit(x: np.ndarray, y: np.ndarray, n_out: int, seed: int, epochs: int = 30) -
     return model.eval()
 
 
-_GREEDY_RNG = np.random.default_rng(0)
-"""Greedy acting never draws from it (`brlcli.policy.greedy_command_brl`'s rule)."""
-MIXTURE_TEACHER = 20.0
-"""The teacher's reward scale for the mixture imitator: -MIXTURE_TEACHER x the action's distance from the label."""
-MIXTURE_PARAMS = {"rho_init": 0.03, "rho_final": 0.03, "T_l": -2.0, "T_u": -1.0}
-"""Component creation for the mixture imitator: a new component wherever a state is farther than 0.03 (l_inf) from
-every component and an action's value falls 2 below its target (the navigation preset: 0.1 -> 0.01 and -10; with
-those, 71 components and 72 % held-out agreement)."""
-
-
-def fit_mixture(x: np.ndarray, y: np.ndarray, seed: int, actions: str = ACTIONS) -> CommandAgent:
-    """A command-conditioned Bayesian mixture fitted by Algorithm 1's own learning step to the teacher's reward of
-    every action at every recorded state (-MIXTURE_TEACHER x `action_distance` from the label; no
-    bootstrapping): the mixture's best imitation of the labels, one pass in a seeded order."""
-    cfg = TrainConfig(task="navigation", actions=actions)
-    agent = CommandAgent(STATE_DIM, len(ACTION_SET_NAMES[actions]), replace(cfg.agent_params(), **MIXTURE_PARAMS))
-    controls = ACTION_SETS[actions]
-    n = len(controls)
-    distance = np.array([[action_distance(a, b) for b in controls] for a in controls])
-    commands = np.array(COMMANDS)[x[:, STATE_DIM:].argmax(1)]
-    for i in np.random.default_rng(seed).permutation(len(y)):
-        state, branch = x[i, :STATE_DIM].astype(np.float64), agent.branch(int(commands[i]))
-        for a in range(n):
-            branch.learn(state, a, -MIXTURE_TEACHER * distance[a, y[i]], state, next_value=0.0)
-    return agent
-
-
-def greedy(model: Imitator | CommandAgent, state: np.ndarray, command: int) -> int:
-    """The imitator's action: the classifier's most likely one, or the mixture's greedy one."""
-    if isinstance(model, CommandAgent):
-        return model.act(np.asarray(state, dtype=np.float64)[:STATE_DIM], command, _GREEDY_RNG, greedy=True)
+def greedy(model: Imitator, state: np.ndarray, command: int) -> int:
+    """The imitator's action: the classifier's most likely one."""
     with torch.no_grad():
         return int(model(torch.as_tensor(features(state, command)[None], dtype=torch.float32)).argmax())
 
 
-def _episodes(args: tuple[int, list[int], dict | str | None, str]) -> dict[str, np.ndarray]:
+def _episodes(args: tuple[int, list[int], dict | None, str]) -> dict[str, np.ndarray]:
     """Drive episodes of one iteration (the classifier drives from iteration 1 on) and record the expert's labels."""
     iteration, episodes, weights, actions = args
-    model: Imitator | CommandAgent | None = None
-    if isinstance(weights, str):
-        model = CommandAgent.load(weights)
-    elif weights is not None:
+    model: Imitator | None = None
+    if weights is not None:
         model = Imitator(STATE_DIM + len(COMMANDS), len(ACTION_SET_NAMES[actions]))
         model.load_state_dict({k: torch.as_tensor(v) for k, v in weights.items()})
         model.eval()
@@ -188,8 +153,6 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--actions", choices=("fine_stop", "fine"), default=ACTIONS,
                         help="the action set imitated: the fine set and stop, or the fine set alone (a gate's driver)")
-    parser.add_argument("--learner", choices=("mlp", "mixture"), default="mlp",
-                        help="the imitator: an MLP, or a Bayesian mixture fitted by Algorithm 1's learning step")
     parser.add_argument("--out", type=Path, required=True, help="directory for data.npz, imitator.pt, figures.json")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -198,11 +161,8 @@ def main() -> None:
     log = []
     model: Imitator | None = None
     for it in range(args.iterations + 1):
-        weights: dict | str | None = None
-        if isinstance(model, CommandAgent):
-            weights = str(args.out / "mixture.npz")
-            model.save(weights)
-        elif model is not None:
+        weights: dict | None = None
+        if model is not None:
             weights = {k: v.numpy() for k, v in model.state_dict().items()}
         chunks = [list(range(w, args.episodes, args.workers)) for w in range(args.workers)]
         with ProcessPoolExecutor(args.workers) as pool:
@@ -218,19 +178,13 @@ def main() -> None:
             xi = torch.as_tensor(data["x"][-1], dtype=torch.float32)
             agree = float(np.mean([greedy(model, xi[i, :STATE_DIM].numpy(), COMMANDS[int(xi[i, STATE_DIM:].argmax())])
                                    == data["y"][-1][i] for i in range(len(xi))]))
-        if args.learner == "mixture":
-            model = fit_mixture(x, y, seed=it, actions=args.actions)
-        else:
-            model = fit(x, y, n_out, seed=it)
+        model = fit(x, y, n_out, seed=it)
         row = {"iteration": it, "driver": "expert" if it == 0 else "imitator", "episodes": args.episodes,
                "goals": goals, "crashes": crashes, "decisions": len(data["y"][-1]),
                "agreement_on_own_states": agree, "data": len(y)}
         log.append(row)
         print(json.dumps(row), flush=True)
-    if isinstance(model, CommandAgent):
-        model.save(args.out / "mixture.npz")
-    else:
-        torch.save(model.state_dict(), args.out / "imitator.pt")
+    torch.save(model.state_dict(), args.out / "imitator.pt")
     save_npz(args.out / "data.npz", {k: np.concatenate(v) for k, v in data.items()})
 
     from brlcli.policy import OraclePolicy, StatePolicy

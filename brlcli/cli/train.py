@@ -123,6 +123,11 @@ def train_summary_line(s: dict) -> str:
         driver = s["driver"]
         line += (f" (a brake gate of {s['gate']['steps']} steps in traffic over "
                  + (f"a committee of {driver['committee']}" if driver.get("committee") else "one driver") + ")")
+    if s.get("imitation"):
+        im = s["imitation"]
+        line += (f" (imitation of the expert: {im['iterations']} DAgger iterations of {im['episodes_per_iteration']} "
+                 f"episodes" + (f", agreement {im['last_agreement']:.0%} on its own states" if im["last_agreement"]
+                                is not None else "") + ")")
     if s.get("committee"):
         restarted = sum(1 for m in s.get("members", []) if m.get("restarts"))
         line += (f" (a committee of {s['committee']} members, majority vote"

@@ -286,7 +286,7 @@ class DrivingEnv(gym.Env):
 
     def expert_action(self) -> int:
         """The index of the action nearest the privileged expert's control at the last observation (outside the
-        paper; the teacher of scripts/state_imitation_evidence.py): `stop` where the set has it and the expert wants
+        paper; the teacher of `learning=imitation`, brlcli.imitation): `stop` where the set has it and the expert wants
         to stand still (a hazard within its stopping gap, or the goal; the oracle's `--stop standstill`), else the
         forward-driving primitive whose steering is nearest the expert's (the oracle's quantisation). Not every
         braking of the expert: it also brakes to slow down for turns, which the 30 numbers cannot tell from standing
