@@ -745,7 +745,8 @@ def _train_gated(cfg: TrainConfig, run_dir: Path, progress: Callable[[Progress],
         "seed": cfg.seed, "steps": driver["steps"] + gate["steps"], "episodes": driver["episodes"] + gate["episodes"],
         "wall_s": driver["wall_s"] + gate["wall_s"], "components": gate["components"],
         "steps_per_s": (driver["steps"] + gate["steps"]) / max(driver["wall_s"] + gate["wall_s"], 1e-9),
-        "driver": {k: driver[k] for k in ("steps", "episodes", "components", "wall_s", "committee") if k in driver},
+        "driver": {k: driver[k] for k in ("steps", "episodes", "components", "wall_s", "committee", "learning")
+                   if k in driver},
         "gate": {k: v for k, v in gate.items() if k != "eval"},
         **({"eval": gate["eval"]} if "eval" in gate else {}),
     }

@@ -39,6 +39,9 @@ RETIRED_DEFAULTS: dict[str, Any] = {
     "command_bootstrap": "next-branch", "exploration": "tau", "posterior_scale": 5.0, "td_error": "component",
 }
 """Config and parameter keys that issue 33 retired, at the value every retired knob had when it was off."""
+ADDED_DEFAULTS: dict[str, Any] = {"privileged_brake_m": 0.0, "learning": "td", "imitation_iterations": 4,
+                                  "imitation_episodes": 300}
+"""Config keys added since issue 33 (issue 35's training options), at their defaults (which change nothing)."""
 RETIRED_COLUMNS = ("r_heading", "r_lateral")
 """log.csv columns of retired knobs (always 0.0 when the knob was off)."""
 RETIRED_STATS = ("warm_started", "best")
@@ -130,7 +133,7 @@ def _clean(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {k: _clean(v) for k, v in obj.items()
                 if not _volatile(k) and not (k in RETIRED_DEFAULTS and v == RETIRED_DEFAULTS[k])
-                and k not in RETIRED_STATS}
+                and not (k in ADDED_DEFAULTS and v == ADDED_DEFAULTS[k]) and k not in RETIRED_STATS}
     if isinstance(obj, list):
         return [_clean(v) for v in obj]
     if isinstance(obj, str) and obj.startswith("{"):

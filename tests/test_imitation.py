@@ -82,6 +82,11 @@ def test_a_brake_gate_learns_over_an_imitating_driver_in_traffic(tmp_path: Path)
     assert gate_cfg["learning"] == "td" and gate_cfg["steps"] == 30
     assert isinstance(CommandAgent.load(seed / "driver" / "model.npz"), CommandAgent)
     assert BrakeGatedAgent.load(seed / "model.npz").n_actions == 9
+    summary = json.loads((seed / "summary.json").read_text())["summary"]
+    assert summary["driver"]["learning"] == "imitation"
+    from brlcli.cli.train import train_summary_line
+
+    assert "one driver that imitates the expert" in train_summary_line(summary)
 
 
 @pytest.mark.parametrize("overrides, message", [

@@ -122,7 +122,8 @@ def train_summary_line(s: dict) -> str:
     if s.get("gate"):
         driver = s["driver"]
         line += (f" (a brake gate of {s['gate']['steps']} steps in traffic over "
-                 + (f"a committee of {driver['committee']}" if driver.get("committee") else "one driver") + ")")
+                 + (f"a committee of {driver['committee']}" if driver.get("committee") else "one driver")
+                 + (" that imitates the expert" if driver.get("learning") == "imitation" else "") + ")")
     if s.get("imitation"):
         im = s["imitation"]
         line += (f" (imitation of the expert: {im['iterations']} DAgger iterations of {im['episodes_per_iteration']} "
