@@ -47,10 +47,10 @@ from brlcli.trainconfig import TrainConfig
 
 IMITATION_TEACHER = 20.0
 """The teacher's reward scale: an action's reward is -IMITATION_TEACHER x its distance from the expert's action."""
-IMITATION_CREATION = {"rho_init": 0.03, "rho_final": 0.03, "T_l": -2.0, "T_u": -1.0}
-"""Component creation of the fit (over the run's agent parameters): a new component wherever a state is farther than
-0.03 (l_inf) from every component and an action's value falls 2 below its target (the navigation preset's 0.1 -> 0.01
-and -10 give 71 components and 72 % held-out agreement; docs/navigation-study.md 12.16)."""
+IMITATION_THRESHOLDS = {"T_l": -2.0, "T_u": -1.0}
+"""The fit's TD thresholds (over the run's agent parameters): with `TrainConfig.imitation_rho` as rho, a new component
+wherever a state is farther than rho (l_inf) from every component and an action's value falls 2 below its target (the
+navigation preset's rho 0.1 -> 0.01 and T_l -10 give 71 components and 72 % held-out agreement; 12.16)."""
 _NO_DRAWS = np.random.default_rng(0)
 """Greedy acting never draws from it (`BayesianAgent.act(greedy=True)`)."""
 ITERATION_COLUMNS = ("iteration", "driver", "episodes", "goals", "crashes", "decisions", "agreement", "data",
@@ -64,7 +64,9 @@ def fit_mixture(states: np.ndarray, commands: np.ndarray, labels: np.ndarray, cf
     at every recorded state (-IMITATION_TEACHER x `action_distance` from the label, next value 0): one pass in the
     order drawn from `order_seed`."""
     controls = ACTION_SETS[cfg.actions]
-    agent = CommandAgent(states.shape[1], len(controls), replace(cfg.agent_params(), **IMITATION_CREATION))
+    rho = cfg.imitation_rho
+    params = replace(cfg.agent_params(), rho_init=rho, rho_final=rho, **IMITATION_THRESHOLDS)
+    agent = CommandAgent(states.shape[1], len(controls), params)
     rewards = -IMITATION_TEACHER * np.array([[action_distance(a, b) for b in controls] for a in controls])
     for i in np.random.default_rng(order_seed).permutation(len(labels)):
         state, branch = states[i], agent.branch(int(commands[i]))

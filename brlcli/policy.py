@@ -121,17 +121,17 @@ def model_camera(model_path: Path) -> CameraConfig | None:
 
 
 class StatePolicy:
-    """A bench policy from any greedy function of the agent's state (BRL agent, DQN network), decided every 7
-    frames on the ground-truth labels or, with a `labeler`, on the segmentation net's labels of the RGB image; the
-    action index picks from `actions` (ACTION_SETS) and the state is the `state` option's (STATE_OPTIONS)."""
-
-    frames_per_decision = FRAMES_PER_DECISION
+    """A bench policy from any greedy function of the agent's state (BRL agent, DQN network), decided every
+    `decision_frames` frames (the paper's 7) on the ground-truth labels or, with a `labeler`, on the segmentation net's
+    labels of the RGB image; the action index picks from `actions` (ACTION_SETS) and the state is the `state`
+    option's (STATE_OPTIONS)."""
 
     def __init__(self, name: str, setting: str, act: Callable[..., int],
                  labeler: Callable[[np.ndarray], np.ndarray] | None = None,
                  camera: CameraConfig | None = None, uses_command: bool = False, actions: str = "paper",
-                 state: str = "paper") -> None:
+                 state: str = "paper", decision_frames: int = FRAMES_PER_DECISION) -> None:
         self.uses_command = uses_command  # act(state, command) instead of act(state)
+        self.frames_per_decision = decision_frames
         self.name = name
         self.setting = setting
         self.act = act
@@ -176,7 +176,8 @@ def greedy_command_brl(agent: Any) -> Callable[[np.ndarray, int], int]:
 
 
 class BRLPolicy(StatePolicy):
-    """A trained Bayesian RL model deployed greedily on GT or estimated labels (decision every 7 frames); a
+    """A trained Bayesian RL model deployed greedily on GT or estimated labels (a decision every 7 frames, or its
+    training's `decision_frames`); a
     command-conditioned model (task navigation) acts with the branch of the route command."""
 
     def __init__(self, name: str, model: str, deploy: str = "gt", segnet: str | None = None) -> None:
@@ -211,12 +212,17 @@ class BRLPolicy(StatePolicy):
         if self.task == "navigation":
             label += ", fine steering" if actions.startswith("fine") else ""
             label += ", brake gate" if gated else ", stop primitive" if actions.endswith("stop") else ", no brake"
+        if config.get("learning") == "imitation":
+            label += ", imitating driver" if gated else ", imitation"
         if state != "paper":
             label += f", {state} state"
+        frames = int(config.get("decision_frames", FRAMES_PER_DECISION))
+        if frames != FRAMES_PER_DECISION:
+            label += f", a decision every {frames} frames"
         super().__init__(name, setting_name(model_training_input(Path(model)), deploy, label),
                          greedy_command_brl(self.agent) if command else greedy_brl(self.agent),
                          labeler_for(deploy, segnet), model_camera(Path(model)), uses_command=command,
-                         actions=actions, state=state)
+                         actions=actions, state=state, decision_frames=frames)
 
 
 class AutopilotPolicy:

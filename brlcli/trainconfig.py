@@ -132,11 +132,15 @@ class TrainConfig:
     privileged_brake_m: float = 0.0  # outside the paper, > 0: in traffic, the training environment takes the stop
     # primitive wherever the privileged hazard gap on the route is under this (m), and the agent does not learn from
     # those decisions (a driver learns its lanes among road users with a teacher's brake; a brake gate over it stops)
+    decision_frames: int = 7  # frames between decisions, each action held for them (the paper's 7, 0.7 s; fewer is
+    # outside the paper): the agent decides, and learns, every decision_frames frames
     learning: str = "td"  # how the navigation model (a gated run's driver) learns: "td", Algorithm 1 on the reward;
     # "imitation" (outside the paper, `brlcli.imitation`): DAgger in the same mixture, fitted by Algorithm 1's learning
     # step to the privileged expert's nearest action of the set (its budget: the two keys below, not `steps`)
     imitation_iterations: int = 4  # DAgger iterations after the expert's own
     imitation_episodes: int = 300  # training episodes per iteration
+    imitation_rho: float = 0.03  # the fit's creation distance: a new component wherever a recorded state is farther
+    # than this (l_inf) from every component of its branch and an action's value falls 2 below its target
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
     # driver/model.npz; or an existing navigation model.npz or member set, then only the gate is trained)
 
@@ -195,6 +199,10 @@ class TrainConfig:
                                         or self.driver_model is not None):
             raise BrlInputError("privileged_brake_m trains a navigation driver in real traffic: it needs --task "
                                 "navigation and traffic levels, without ghost_traffic or driver_model")
+        if isinstance(self.decision_frames, bool) or not isinstance(self.decision_frames, int) or \
+                not 1 <= self.decision_frames <= 20:
+            raise BrlInputError(f"decision_frames must be an integer in 1..20 (the paper's 7), got "
+                                f"{self.decision_frames!r}")
         self._check_gate()
         self._check_learning()
 
@@ -206,6 +214,9 @@ class TrainConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (0 if "iterations" in name else 1):
                 raise BrlInputError(f"{name} must be an integer >= {0 if 'iterations' in name else 1}, got {value!r}")
+        if isinstance(self.imitation_rho, bool) or not isinstance(self.imitation_rho, int | float) or \
+                not 0 < self.imitation_rho <= 1:
+            raise BrlInputError(f"imitation_rho must be a distance in (0, 1], got {self.imitation_rho!r}")
         if self.learning == "td":
             return
         if self.task != "navigation" or self.driver_model is not None:

@@ -96,6 +96,7 @@ def test_a_brake_gate_learns_over_an_imitating_driver_in_traffic(tmp_path: Path)
     ({"imitation_iterations": 1.5}, "imitation_iterations must be an integer >= 0"),
     ({"curve_every": 100}, "drop curve_every"),
     ({"privileged_brake_m": 8.0}, "drop privileged_brake_m"),
+    ({"imitation_rho": 0.0}, "imitation_rho must be a distance in"),
     ({"driver_model": "models/brl_nav/seed_0", "brake_gate_steps": 10, "r_hazard": 20.0}, "no driver_model"),
 ])
 def test_imitation_options_are_checked_in_one_line(overrides: dict, message: str) -> None:

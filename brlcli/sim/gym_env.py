@@ -99,8 +99,11 @@ class DrivingEnv(gym.Env):
                  junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None,
                  actions: str = "paper", traffic: tuple[str, ...] = (), hazard: HazardRewardParams | None = None,
                  state: str = "paper", r_stand: float = 0.0, road_user_contact: bool = True,
-                 privileged_brake_m: float = 0.0) -> None:
+                 privileged_brake_m: float = 0.0, decision_frames: int = FRAMES_PER_DECISION) -> None:
         super().__init__()
+        if isinstance(decision_frames, bool) or not isinstance(decision_frames, int) or not 1 <= decision_frames <= 20:
+            raise BrlInputError(f"decision_frames must be an integer in 1..20, got {decision_frames!r}")
+        self.frames_per_decision = decision_frames  # the paper's 7; fewer is outside the paper
         try:
             self.check_traffic_options(actions, traffic, state, r_stand)
         except ValueError as exc:
@@ -230,10 +233,10 @@ class DrivingEnv(gym.Env):
                                       **({"traffic": self.traffic_level} if self.traffic_levels else {})}
 
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
-        """Hold the action's control for 7 frames, render the last one, and score it. With `privileged_brake_m` (in
-        traffic; outside the paper) the control is the stop primitive instead wherever the privileged hazard gap
-        along the route (road users predicted 0-2 s ahead, the expert's test) is under that distance, and
-        info["overridden"] says so: a driver learns among road users with a teacher's brake."""
+        """Hold the action's control for `decision_frames` frames (the paper's 7), render the last one, and score it.
+        With `privileged_brake_m` (in traffic; outside the paper) the control is the stop primitive instead wherever
+        the privileged hazard gap along the route (road users predicted 0-2 s ahead, the expert's test) is under that
+        distance, and info["overridden"] says so: a driver learns among road users with a teacher's brake."""
         if not self.action_space.contains(action):
             raise BrlInputError(f"action {action!r} is not one of 0..{len(self.actions) - 1}")
         control = self.actions[int(action)]
@@ -242,8 +245,8 @@ class DrivingEnv(gym.Env):
             lm = self._last_m
             if hazard_gap_m(self.world.traffic, self.route, lm.x, lm.y, lm.yaw_deg) < self.privileged_brake_m:
                 control, overridden = STOP, True
-        for k in range(FRAMES_PER_DECISION):
-            frame = self.world.step(control, render=k == FRAMES_PER_DECISION - 1)
+        for k in range(self.frames_per_decision):
+            frame = self.world.step(control, render=k == self.frames_per_decision - 1)
         m = frame.measurements
         total = m.collision_vehicles + m.collision_pedestrians + m.collision_other
         collided = total > self._collision_total
@@ -264,7 +267,7 @@ class DrivingEnv(gym.Env):
         s, lateral = self.route.project(m.x, m.y)
         wrong_turn = False
         if self.route_reward is not None:
-            expected = v_target / 3.6 * FRAMES_PER_DECISION * FRAME_DT_S
+            expected = v_target / 3.6 * self.frames_per_decision * FRAME_DT_S
             extra = route_terms(s - self._route_s, expected, lateral, self.route_reward)
             wrong_turn = extra["wrong_turn"] < 0.0
             terms = {**terms, **extra, "total": terms["total"] + extra["progress"] + extra["wrong_turn"]}
@@ -272,7 +275,7 @@ class DrivingEnv(gym.Env):
         dist_goal = float(np.hypot(m.x - self.route.goal[0], m.y - self.route.goal[1]))
         terminated = dist_goal <= GOAL_TOLERANCE_M or s >= self.route.length_m - GOAL_TOLERANCE_M
         waiting = v_target < vt  # standing for a hazard is not being stuck
-        self._stuck_s = self._stuck_s + FRAMES_PER_DECISION * FRAME_DT_S if abs(m.forward_speed_kmh) < \
+        self._stuck_s = self._stuck_s + self.frames_per_decision * FRAME_DT_S if abs(m.forward_speed_kmh) < \
             STUCK_SPEED_KMH and not waiting else 0.0
         left_lane = (self.offroad_end is not None and m.intersection_offroad > self.offroad_end) or \
             (self.otherlane_end is not None and m.intersection_otherlane > self.otherlane_end)
