@@ -116,3 +116,26 @@ def test_brl_train_imitation_from_the_cli(tmp_path: Path) -> None:
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "imitation_episodes must be" in bad.stderr + bad.stdout
     assert "Traceback" not in bad.stderr and not (tmp_path / "bad").exists()
+
+
+def test_a_model_trained_at_another_decision_rate_benches_at_it(tmp_path: Path) -> None:
+    from brlcli.policy import BRLPolicy
+    from brlcli.sim.gym_env import DrivingEnv
+    from brlcli.sim.world import FRAME_DT_S
+
+    env = DrivingEnv(routes="navigation", decision_frames=3)
+    try:
+        env.reset(seed=0)
+        first, second = (env.step(1)[4]["measurements"]["game_time_s"] for _ in range(2))
+        assert second - first == pytest.approx(3 * FRAME_DT_S, abs=1e-9)
+    finally:
+        env.close()
+    cfg = TrainConfig(**{**TINY, "imitation_iterations": 0, "decision_frames": 3})
+    train_run(cfg, tmp_path / "f3")
+    policy = BRLPolicy("brl", str(tmp_path / "f3"))
+    assert policy.frames_per_decision == 3 and "a decision every 3 frames" in policy.setting
+    assert "imitation" in policy.setting
+    with pytest.raises(BrlInputError, match=r"decision_frames must be an integer in 1\.\.20"):
+        TrainConfig(decision_frames=0)
+    with pytest.raises(BrlInputError, match=r"decision_frames must be an integer in 1\.\.20"):
+        DrivingEnv(decision_frames=True)
