@@ -137,7 +137,8 @@ class TrainConfig:
     learning: str = "td"  # how the navigation model (a gated run's driver) learns: "td", Algorithm 1 on the reward;
     # "imitation" (outside the paper, `brlcli.imitation`): DAgger in the same mixture, fitted by Algorithm 1's learning
     # step to the privileged expert's nearest action of the set (its budget: the two keys below, not `steps`)
-    imitation_iterations: int = 4  # DAgger iterations after the expert's own
+    imitation_iterations: int = 8  # DAgger iterations after the expert's own (4 drove 14 / 5 / 3 of 16 validation
+    # routes against 8's 16 / 11 / 1; navigation-study 12.17)
     imitation_episodes: int = 300  # training episodes per iteration
     imitation_rho: float = 0.03  # the fit's creation distance: a new component wherever a recorded state is farther
     # than this (l_inf) from every component of its branch and an action's value falls 2 below its target

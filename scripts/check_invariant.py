@@ -39,7 +39,7 @@ RETIRED_DEFAULTS: dict[str, Any] = {
     "command_bootstrap": "next-branch", "exploration": "tau", "posterior_scale": 5.0, "td_error": "component",
 }
 """Config and parameter keys that issue 33 retired, at the value every retired knob had when it was off."""
-ADDED_DEFAULTS: dict[str, Any] = {"privileged_brake_m": 0.0, "learning": "td", "imitation_iterations": 4,
+ADDED_DEFAULTS: dict[str, Any] = {"privileged_brake_m": 0.0, "learning": "td", "imitation_iterations": 8,
                                   "imitation_episodes": 300, "imitation_rho": 0.03,
                                   "decision_frames": 7}
 """Config keys added since issue 33 (issue 35's training options), at their defaults (which change nothing)."""
