@@ -83,8 +83,9 @@ def plan(quick: bool) -> list[tuple[str, list[str]]]:
                                                "--set", "committee=2", "--out", "nav"]),
         ("train navigation (curve)", ["train", "--task", "navigation", "--steps", "1000", "--curve-every", "500",
                                       "--set", "committee=1", "--seed", "1", "--no-evaluate", "--out", "nav_curve"]),
-        ("assemble the shipped committee", ["train", "--task", "navigation", "--seeds", "0", "--set", "committee=7",
-                                            "--out", "nav_shipped", "--resume"]),
+        ("assemble the shipped committee", ["train", "--task", "navigation", "--variant", "action-averaging-restart",
+                                            "--seeds", "0", "--set", "committee=7", "--out", "nav_shipped",
+                                            "--resume"]),  # the shipped members' variant (before issue 34's default)
         ("train-rl", ["train-rl", "--steps", "1200", "--eval-every", "600", "--eval-suite", "none", "--seed", "0",
                       "--out", "drl"]),
         ("train-il", ["train-il", "--data", "bags", "--epochs", "1", "--batch-size", "16", "--out", "il"]),
