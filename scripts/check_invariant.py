@@ -138,7 +138,7 @@ def _clean(obj: Any) -> Any:
                 and not (k in ADDED_DEFAULTS and v == ADDED_DEFAULTS[k]) and k not in RETIRED_STATS}
     if isinstance(obj, list):
         return [_clean(v) for v in obj]
-    if isinstance(obj, str) and obj.startswith("{"):
+    if isinstance(obj, str) and obj.startswith(("{", "[")):
         try:
             return _clean(json.loads(obj))
         except json.JSONDecodeError:
