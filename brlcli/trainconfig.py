@@ -187,6 +187,7 @@ class TrainConfig:
             self.camera()
             DrivingEnv.check_episode_rules(self.offroad_end, self.start_offset_m, self.start_yaw_deg,
                                            self.otherlane_end)
+            DrivingEnv.check_decision_frames(self.decision_frames)
         except ValueError as exc:
             raise BrlInputError(f"bad training configuration: {exc}") from None
         get_weather(self.weather)
@@ -200,10 +201,6 @@ class TrainConfig:
                                         or self.driver_model is not None):
             raise BrlInputError("privileged_brake_m trains a navigation driver in real traffic: it needs --task "
                                 "navigation and traffic levels, without ghost_traffic or driver_model")
-        if isinstance(self.decision_frames, bool) or not isinstance(self.decision_frames, int) or \
-                not 1 <= self.decision_frames <= 20:
-            raise BrlInputError(f"decision_frames must be an integer in 1..20 (the paper's 7), got "
-                                f"{self.decision_frames!r}")
         self._check_gate()
         self._check_learning()
 

@@ -101,8 +101,10 @@ class DrivingEnv(gym.Env):
                  state: str = "paper", r_stand: float = 0.0, road_user_contact: bool = True,
                  privileged_brake_m: float = 0.0, decision_frames: int = FRAMES_PER_DECISION) -> None:
         super().__init__()
-        if isinstance(decision_frames, bool) or not isinstance(decision_frames, int) or not 1 <= decision_frames <= 20:
-            raise BrlInputError(f"decision_frames must be an integer in 1..20, got {decision_frames!r}")
+        try:
+            self.check_decision_frames(decision_frames)
+        except ValueError as exc:
+            raise BrlInputError(str(exc)) from None
         self.frames_per_decision = decision_frames  # the paper's 7; fewer is outside the paper
         try:
             self.check_traffic_options(actions, traffic, state, r_stand)
@@ -165,6 +167,12 @@ class DrivingEnv(gym.Env):
                                                 dtype=np.float32)
         self.action_space = gym.spaces.Discrete(len(self.actions))
         self._rgb: np.ndarray | None = None
+
+    @staticmethod
+    def check_decision_frames(decision_frames: int) -> None:
+        """ValueError unless decision_frames is an integer in 1..20 (the paper's 7)."""
+        if isinstance(decision_frames, bool) or not isinstance(decision_frames, int) or not 1 <= decision_frames <= 20:
+            raise ValueError(f"decision_frames must be an integer in 1..20 (the paper's 7), got {decision_frames!r}")
 
     @staticmethod
     def check_episode_rules(offroad_end: float | None, start_offset_m: float, start_yaw_deg: float,
