@@ -26,6 +26,11 @@ DYNAMIC_CATEGORY = 3
 """The category of vehicles and pedestrians (road users)."""
 
 
+def road_user_in_view(state: np.ndarray) -> bool:
+    """Whether a state's first 30 numbers (the paper's, under every state option) show a vehicle or pedestrian."""
+    return bool(np.asarray(state)[DYNAMIC_CATEGORY:STATE_DIM:N_CATEGORIES].sum() > 0.0)
+
+
 def region_index(height: int, width: int) -> np.ndarray:
     """Region id (0..5, row-major: top-left, top-middle, top-right, bottom-left, ...) of every pixel."""
     top = round(TOP_ROW_SHARE * height)

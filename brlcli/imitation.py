@@ -40,6 +40,7 @@ import numpy as np
 
 from brlcli.agent.command import CommandAgent
 from brlcli.npzio import save_npz
+from brlcli.policy import with_stop_rule
 from brlcli.provenance import atomic_write_bytes, provenance
 from brlcli.sim.gym_env import ACTION_SETS, DrivingEnv, action_distance
 from brlcli.sim.roadnet import BRANCH_NAMES
@@ -79,13 +80,15 @@ def _seed_tail(cfg: TrainConfig) -> list[int]:
     return [cfg.member] if cfg.member else []
 
 
-def record_iteration(env: DrivingEnv, cfg: TrainConfig, iteration: int, driver: CommandAgent | None,
+def record_iteration(env: DrivingEnv, cfg: TrainConfig, iteration: int, driver: Any,
                      on_episode: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
-    """Drive one iteration's episodes (the expert in iteration 0, else `driver` greedily) and record, at every
-    decision, the state, the command, the expert's action and the action taken."""
+    """Drive one iteration's episodes (the expert in iteration 0, else `driver` greedily, under the run's
+    `stop_rule`) and record, at every decision, the state, the command, the expert's action and the action taken."""
     rows: dict[str, list[Any]] = {"states": [], "commands": [], "labels": [], "actions": [], "traffic": [],
                                   "episode": []}
     goals = crashes = 0
+    if driver is not None:
+        driver = with_stop_rule(driver, cfg.actions, cfg.stop_rule)
     t0 = time.perf_counter()
     for e in range(cfg.imitation_episodes):
         seed = int(np.random.default_rng([cfg.seed, iteration, e, 43, *_seed_tail(cfg)]).integers(2**31))

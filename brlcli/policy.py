@@ -24,7 +24,15 @@ from brlcli.retired import RETIRED_CONFIG, retired_message
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.settings import setting_name
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import ACTION_SETS, ACTIONS, FRAMES_PER_DECISION, GATE_DRIVER_ACTIONS, STOP, nearest_forward
+from brlcli.sim.gym_env import (
+    ACTION_SETS,
+    ACTIONS,
+    FRAMES_PER_DECISION,
+    GATE_DRIVER_ACTIONS,
+    STOP,
+    STOP_RULES,
+    nearest_forward,
+)
 from brlcli.sim.vehicle import Control
 
 if TYPE_CHECKING:
@@ -175,6 +183,16 @@ def greedy_command_brl(agent: Any) -> Callable[[np.ndarray, int], int]:
     return act
 
 
+def with_stop_rule(agent: Any, actions: str, stop_rule: str) -> Any:
+    """A navigation model as it drives under `stop_rule` (STOP_RULES): itself, or with "road_user" its stop primitive
+    taken only where the state shows a road user (`RoadUserStop`)."""
+    if stop_rule == "any":
+        return agent
+    from brlcli.agent.command import RoadUserStop
+
+    return RoadUserStop(agent, ACTION_SETS[actions].index(STOP))
+
+
 class BRLPolicy(StatePolicy):
     """A trained Bayesian RL model deployed greedily on GT or estimated labels (a decision every 7 frames, or its
     training's `decision_frames`); a
@@ -216,6 +234,13 @@ class BRLPolicy(StatePolicy):
             label += ", imitating driver" if gated else ", imitation"
         if state != "paper":
             label += f", {state} state"
+        stop_rule = str(config.get("stop_rule", "any"))
+        if stop_rule not in STOP_RULES:
+            raise BrlInputError(f"model {model}: its config.json names stop_rule '{stop_rule}', which this brl does "
+                                f"not know ({', '.join(STOP_RULES)})")
+        if stop_rule != "any":
+            self.agent = with_stop_rule(self.agent, actions, stop_rule)
+            label += ", stop only for road users in view"
         frames = int(config.get("decision_frames", FRAMES_PER_DECISION))
         if frames != FRAMES_PER_DECISION:
             label += f", a decision every {frames} frames"

@@ -487,7 +487,7 @@ class LearningCurve(Hook):
 
         t0 = time.perf_counter()
         policy = greedy_policy(deployable(agent), self.cfg.task, self.setting, self.labeler, self.cfg.camera(),
-                               self.cfg.actions, self.cfg.state, self.cfg.decision_frames)
+                               self.cfg.actions, self.cfg.state, self.cfg.decision_frames, self.cfg.stop_rule)
         self.rows.append({"env_steps": step, **self.evaluator.evaluate(policy)})
         write_curve(self.path, self.rows)
         self.eval_s += time.perf_counter() - t0
@@ -658,16 +658,19 @@ def make_env(cfg: TrainConfig) -> DrivingEnv:
                       junction_approaches_m=tuple(cfg.junction_approaches_m) if nav else None,
                       actions=cfg.env_actions, traffic=tuple(cfg.traffic), hazard=cfg.hazard_reward(), state=cfg.state,
                       r_stand=cfg.r_stand, road_user_contact=not cfg.ghost_traffic,
-                      privileged_brake_m=cfg.privileged_brake_m, decision_frames=cfg.decision_frames)
+                      privileged_brake_m=cfg.privileged_brake_m, decision_frames=cfg.decision_frames,
+                      stop_rule=cfg.stop_rule)
 
 
 def greedy_policy(model: Any, task: str, setting: str, labels: Callable[[np.ndarray], np.ndarray] | None,
                   camera: CameraConfig, actions: str = "paper", state: str = "paper",
-                  decision_frames: int = FRAMES_PER_DECISION) -> Any:
-    """The bench policy of a trained model, acting greedily (never with the training generator)."""
-    from brlcli.policy import StatePolicy, greedy_brl, greedy_command_brl
+                  decision_frames: int = FRAMES_PER_DECISION, stop_rule: str = "any") -> Any:
+    """The bench policy of a trained model, acting greedily (never with the training generator), with the stop
+    primitive where `stop_rule` allows it."""
+    from brlcli.policy import StatePolicy, greedy_brl, greedy_command_brl, with_stop_rule
 
     if task == "navigation":
+        model = with_stop_rule(model, actions, stop_rule)
         return StatePolicy("brl", setting, greedy_command_brl(model), labels, camera, uses_command=True,
                            actions=actions, state=state, decision_frames=decision_frames)
     return StatePolicy("brl", setting, greedy_brl(model), labels, camera, actions=actions, state=state,
@@ -691,7 +694,7 @@ def evaluate_greedy(model: Any, cfg: TrainConfig) -> dict[str, Any]:
     evaluator = SuiteEvaluator(suite, weathers=weathers)
     try:
         policy = greedy_policy(model, cfg.task, setting_name(cfg.input, cfg.input, cfg.variant), labeler(cfg),
-                               cfg.camera(), cfg.env_actions, cfg.state, cfg.decision_frames)
+                               cfg.camera(), cfg.env_actions, cfg.state, cfg.decision_frames, cfg.stop_rule)
         figures = evaluator.evaluate(policy)
     finally:
         evaluator.close()

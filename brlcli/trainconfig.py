@@ -17,7 +17,7 @@ from brlcli.retired import RETIRED_CONFIG, RETIRED_PARAMS, drop_retired, refuse_
 from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams
 from brlcli.segnet import check_input_source
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import GATE_DRIVER_ACTIONS, DrivingEnv
+from brlcli.sim.gym_env import GATE_DRIVER_ACTIONS, STOP_RULES, DrivingEnv
 from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
 from brlcli.sim.weather import get_weather
 
@@ -134,6 +134,8 @@ class TrainConfig:
     # those decisions (a driver learns its lanes among road users with a teacher's brake; a brake gate over it stops)
     decision_frames: int = 7  # frames between decisions, each action held for them (the paper's 7, 0.7 s; fewer is
     # outside the paper): the agent decides, and learns, every decision_frames frames
+    stop_rule: str = "any"  # where the stop primitive may be taken (STOP_RULES): "any", or "road_user" (outside the
+    # paper; imitation only): only where the state shows a road user, for the teacher's labels and the driver alike
     learning: str = "td"  # how the navigation model (a gated run's driver) learns: "td", Algorithm 1 on the reward;
     # "imitation" (outside the paper, `brlcli.imitation`): DAgger in the same mixture, fitted by Algorithm 1's learning
     # step to the privileged expert's nearest action of the set (its budget: the two keys below, not `steps`)
@@ -203,6 +205,16 @@ class TrainConfig:
                                 "navigation and traffic levels, without ghost_traffic or driver_model")
         self._check_gate()
         self._check_learning()
+        self._check_stop_rule()
+
+    def _check_stop_rule(self) -> None:
+        """The road-user stop rule: an imitating model whose own action set has the stop primitive."""
+        if self.stop_rule not in STOP_RULES:
+            raise BrlInputError(f"unknown stop_rule '{self.stop_rule}'; choose one of {', '.join(STOP_RULES)}")
+        if self.stop_rule != "any" and (self.learning != "imitation" or self.actions not in ("stop", "fine_stop")
+                                        or self.brake_gate_steps or self.driver_model is not None):
+            raise BrlInputError(f"stop_rule={self.stop_rule} needs learning=imitation and an action set with the stop "
+                                "primitive (actions=stop or fine_stop), without a brake gate")
 
     def _check_learning(self) -> None:
         """Imitation's options: a navigation model of its own, none of TD learning's hooks."""

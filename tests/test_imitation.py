@@ -139,3 +139,70 @@ def test_a_model_trained_at_another_decision_rate_benches_at_it(tmp_path: Path) 
         TrainConfig(decision_frames=0)
     with pytest.raises(BrlInputError, match=r"decision_frames must be an integer in 1\.\.20"):
         DrivingEnv(decision_frames=True)
+
+
+def _stop_agent(stop_at_empty_road: bool) -> CommandAgent:
+    """A mixture fitted to stop at one state (with or without a road user in view) and drive on at another."""
+    rng = np.random.default_rng(1)
+    road = np.zeros(30)
+    road[0::5] = 1.0 / 6  # only road in every region
+    seen = road.copy()
+    seen[3], seen[0] = 0.05, 1.0 / 6 - 0.05  # a road user in the top-left region
+    stop_state = road if stop_at_empty_road else seen
+    go_state = seen if stop_at_empty_road else road
+    states = np.vstack([np.repeat([stop_state], 20, 0), np.repeat([go_state], 20, 0)]) + rng.normal(0, 1e-4, (40, 30))
+    labels = np.repeat([8, 0], 20)  # fine_stop: 8 is stop, 0 forward
+    cfg = TrainConfig(**{**TINY, "actions": "fine_stop"})
+    return fit_mixture(states, np.full(40, 2), labels, cfg, order_seed=[0])
+
+
+def test_the_road_user_stop_rule_drives_on_where_nothing_is_in_view() -> None:
+    from brlcli.agent.command import CommitteeAgent, RoadUserStop
+    from brlcli.features import road_user_in_view
+
+    road = np.zeros(30)
+    road[0::5] = 1.0 / 6
+    seen = road.copy()
+    seen[3], seen[0] = 0.05, 1.0 / 6 - 0.05
+    assert not road_user_in_view(road) and road_user_in_view(seen) and road_user_in_view(np.append(seen, 0.0))
+    rng = np.random.default_rng(0)
+    stopper = _stop_agent(stop_at_empty_road=True)
+    assert stopper.act(road, 2, rng, greedy=True) == 8  # the learned values stop on an empty road ...
+    ruled = RoadUserStop(stopper, 8)
+    assert ruled.act(road, 2, rng, greedy=True) != 8  # ... the rule drives on
+    probs = stopper.branch(2).action_probabilities(road)
+    assert ruled.act(road, 2, rng, greedy=True) == int(np.argmax(probs[:8]))  # the best of the others
+    braker = _stop_agent(stop_at_empty_road=False)
+    assert RoadUserStop(braker, 8).act(seen, 2, rng, greedy=True) == 8  # a road user in view: it stops
+    committee = RoadUserStop(CommitteeAgent([stopper, stopper]), 8)
+    assert committee.act(road, 2, rng, greedy=True) != 8 and committee.n_actions == 9
+    with pytest.raises(ValueError, match="greedily"):
+        ruled.act(road, 2, rng)
+
+
+def test_a_run_with_the_road_user_stop_rule_labels_and_benches_by_it(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    from brlcli.autopilot import Autopilot
+    from brlcli.policy import BRLPolicy
+    from brlcli.sim.gym_env import DrivingEnv
+
+    monkeypatch.setattr(Autopilot, "must_stop", lambda self, m: True)  # the expert wants to stand ...
+    labels = {}
+    for rule in ("any", "road_user"):
+        env = DrivingEnv(routes="navigation", actions="fine_stop", stop_rule=rule)  # ... on an empty road
+        try:
+            env.reset(seed=0)
+            labels[rule] = env.expert_action()
+        finally:
+            env.close()
+    assert labels["any"] == 8 and labels["road_user"] != 8  # the rule's teacher asks for no stop it cannot see
+    monkeypatch.undo()
+    cfg = TrainConfig(**{**TINY, "actions": "fine_stop", "traffic": ["dense"], "stop_rule": "road_user",
+                         "imitation_iterations": 0, "imitation_episodes": 2})
+    train_run(cfg, tmp_path / "rule")
+    policy = BRLPolicy("brl", str(tmp_path / "rule"))
+    assert "stop only for road users in view" in policy.setting
+    assert type(policy.agent).__name__ == "RoadUserStop"
+    for overrides in ({"actions": "fine"}, {"learning": "td", "imitation_iterations": 8}, {"stop_rule": "never"}):
+        with pytest.raises(BrlInputError, match="stop_rule"):
+            TrainConfig(**{**TINY, "actions": "fine_stop", "stop_rule": "road_user", **overrides})

@@ -29,6 +29,7 @@ from brlcli.agent.bayes import BayesianAgent, LearnStep, Prefixed, _one_line, op
 from brlcli.agent.committee import committee_members, majority_vote, model_file
 from brlcli.agent.params import BRLParams
 from brlcli.errors import BrlInputError
+from brlcli.features import road_user_in_view
 from brlcli.retired import RETIRED_CONFIG, retired_message
 from brlcli.sim.roadnet import BRANCH_NAMES, command_branch
 
@@ -220,6 +221,42 @@ class CommitteeAgent:
             return cls(members)
         except ValueError as exc:
             raise BrlInputError(f"model file {path}: {exc}") from None
+
+
+class RoadUserStop:
+    """A navigation driver (command-conditioned agent or committee) whose stop primitive is taken only where the state
+    shows a road user (`stop_rule` road_user; outside the paper), elsewhere its greedy choice among the other
+    primitives: a standing car sees the same state, so a stop chosen with nothing in view would hold it for good."""
+
+    def __init__(self, agent: CommandAgent | CommitteeAgent, stop: int) -> None:
+        self.agent = agent
+        self.stop = stop
+
+    @property
+    def state_dim(self) -> int:
+        """Length of the state vector."""
+        return self.agent.state_dim
+
+    @property
+    def n_actions(self) -> int:
+        """Number of action primitives."""
+        return self.agent.n_actions
+
+    @property
+    def total_components(self) -> int:
+        """Components of the driver."""
+        return self.agent.total_components
+
+    def act(self, state: np.ndarray, command: int, rng: np.random.Generator, greedy: bool = False) -> int:
+        """The driver's greedy action, or with nothing in view its greedy choice without the stop primitive."""
+        if not greedy:
+            raise ValueError("the road-user stop rule acts greedily only")
+        if road_user_in_view(state):
+            return self.agent.act(state, command, rng, greedy=True)
+        members = self.agent.members if isinstance(self.agent, CommitteeAgent) else [self.agent]
+        probabilities = np.array([m.branch(command).action_probabilities(state) for m in members])
+        probabilities[:, self.stop] = -1.0
+        return majority_vote(probabilities)
 
 
 def driver_from_npz(npz: Any, path: str) -> CommandAgent | CommitteeAgent:

@@ -11,7 +11,7 @@ import numpy as np
 
 from brlcli.autopilot import Autopilot
 from brlcli.errors import BrlInputError
-from brlcli.features import STATE_DIM, STATE_OPTIONS, agent_state
+from brlcli.features import STATE_DIM, STATE_OPTIONS, agent_state, road_user_in_view
 from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams, hazard_terms, reward_terms, route_terms
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.hazard import hazard_gap_m
@@ -42,6 +42,10 @@ ACTION_SET_NAMES = {"paper": ACTION_NAMES, "stop": (*ACTION_NAMES, "stop"), "fin
                     "fine_stop": (*ACTION_NAMES, *FINE_NAMES, "stop")}
 GATE_DRIVER_ACTIONS = {"paper": "stop", "fine": "fine_stop"}
 """A brake gate's driver action sets and the set its runs drive with: the driver's and `stop` last."""
+STOP_RULES = ("any", "road_user")
+"""Where a model with `stop` may take it: wherever its values pick it, or (outside the paper; issue 35) only where the
+state shows a road user (`brlcli.features.road_user_in_view`): the teacher of `learning=imitation` then labels a stop
+only there, and the driver, its evaluation and `brl bench` take it only there (`brlcli.agent.command.RoadUserStop`)."""
 TRAFFIC_LEVELS = ("empty", "regular", "dense")
 """Training traffic levels (NoCrash's counts per town, `brlcli.sim.traffic.NOCRASH_TRAFFIC`)."""
 FRAMES_PER_DECISION = 7
@@ -99,8 +103,12 @@ class DrivingEnv(gym.Env):
                  junction_weight: float | None = None, junction_approaches_m: tuple[float, ...] | None = None,
                  actions: str = "paper", traffic: tuple[str, ...] = (), hazard: HazardRewardParams | None = None,
                  state: str = "paper", r_stand: float = 0.0, road_user_contact: bool = True,
-                 privileged_brake_m: float = 0.0, decision_frames: int = FRAMES_PER_DECISION) -> None:
+                 privileged_brake_m: float = 0.0, decision_frames: int = FRAMES_PER_DECISION,
+                 stop_rule: str = "any") -> None:
         super().__init__()
+        if stop_rule not in STOP_RULES:
+            raise BrlInputError(f"unknown stop_rule '{stop_rule}'; choose one of {', '.join(STOP_RULES)}")
+        self.stop_rule = stop_rule
         try:
             self.check_decision_frames(decision_frames)
         except ValueError as exc:
@@ -301,9 +309,11 @@ class DrivingEnv(gym.Env):
         to stand still (a hazard within its stopping gap, or the goal; the oracle's `--stop standstill`), else the
         forward-driving primitive whose steering is nearest the expert's (the oracle's quantisation). Not every
         braking of the expert: it also brakes to slow down for turns, which the 30 numbers cannot tell from standing
-        (they carry no speed), so a stop learned there would hold a standing car."""
+        (they carry no speed), so a stop learned there would hold a standing car. With `stop_rule` road_user, a stop
+        only where the state shows a road user: elsewhere the agent could not see why."""
         pilot = Autopilot(self.world, self.route, np.random.default_rng(0))
-        if STOP in self.actions and pilot.must_stop(self._last_m):
+        visible = self.stop_rule == "any" or road_user_in_view(self._state)
+        if STOP in self.actions and visible and pilot.must_stop(self._last_m):
             return self.actions.index(STOP)
         return nearest_forward(self.actions, pilot.expert(self._last_m).steer)
 
