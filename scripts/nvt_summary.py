@@ -1,10 +1,13 @@
 """Issue 35: one line per bench directory: successes (crashes) per traffic level and the opposite-lane share.
 
     python scripts/nvt_summary.py runs/s38/nvt_fine_ghost [more bench directories]
+    python scripts/nvt_summary.py --seeds runs/s43/nvt_rule9_s*    # and mean, std, best and worst over them
 
 Reads each directory's results.jsonl (nav_validation_traffic or NoCrash): per task (empty, regular, dense) the
 episodes reaching the goal, those ended by a crash in brackets, and the share of all frames partly in the opposite
-lane. Outside the paper.
+lane. With `--seeds`, the directories are one model per seed: a last line gives each level's mean and standard
+deviation (population, over the seeds) of the goals and crashes, and the best and worst seed by total goals (then
+fewest crashes). Outside the paper.
 """
 
 from __future__ import annotations
@@ -13,10 +16,40 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
+
+def _rows(bench_dir: Path) -> list[dict]:
+    return [json.loads(line) for line in (bench_dir / "results.jsonl").read_text().splitlines() if line.strip()]
+
+
+def counts(bench_dir: Path) -> dict[str, tuple[int, int, int]]:
+    """Per task: (goals, crashes, episodes)."""
+    rows = _rows(bench_dir)
+    out = {}
+    for task in dict.fromkeys(r["task"] for r in rows):
+        sel = [r for r in rows if r["task"] == task]
+        out[task] = (sum(r["success"] for r in sel), sum(bool(r.get("crashed", r["collided"])) for r in sel), len(sel))
+    return out
+
+
+def seed_summary(bench_dirs: list[Path]) -> str:
+    """Mean +- std of goals (crashes) per task over one bench directory per seed, and the best and worst seed."""
+    per = [counts(d) for d in bench_dirs]
+    parts = []
+    for task in per[0]:
+        goals = np.array([c[task][0] for c in per], float)
+        crashes = np.array([c[task][1] for c in per], float)
+        parts.append(f"{task} {goals.mean():.1f} +- {goals.std():.1f} ({crashes.mean():.1f} +- {crashes.std():.1f}) "
+                     f"of {per[0][task][2]}")
+    key = [(sum(v[0] for v in c.values()), -sum(v[1] for v in c.values())) for c in per]
+    best, worst = max(range(len(per)), key=key.__getitem__), min(range(len(per)), key=key.__getitem__)
+    return (f"{len(per)} seeds: " + " | ".join(parts) + f" | best {bench_dirs[best]}, worst {bench_dirs[worst]}")
+
 
 def summary(bench_dir: Path) -> str:
     """'Empty g/n (c) | Regular ... | opposite lane x %' for one bench directory."""
-    rows = [json.loads(line) for line in (bench_dir / "results.jsonl").read_text().splitlines() if line.strip()]
+    rows = _rows(bench_dir)
     parts = []
     for task in dict.fromkeys(r["task"] for r in rows):
         sel = [r for r in rows if r["task"] == task]
@@ -28,5 +61,9 @@ def summary(bench_dir: Path) -> str:
 
 
 if __name__ == "__main__":
-    for arg in sys.argv[1:]:
-        print(summary(Path(arg)))
+    seeds = sys.argv[1:2] == ["--seeds"]
+    dirs = [Path(a) for a in sys.argv[1 + seeds:]]
+    for d in dirs:
+        print(summary(d))
+    if seeds and dirs:
+        print(seed_summary(dirs))
