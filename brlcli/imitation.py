@@ -42,7 +42,7 @@ from brlcli.agent.command import CommandAgent
 from brlcli.npzio import save_npz
 from brlcli.policy import with_stop_rule
 from brlcli.provenance import atomic_write_bytes, provenance
-from brlcli.sim.gym_env import ACTION_SETS, DrivingEnv, action_distance
+from brlcli.sim.gym_env import ACTION_SETS, STOP, DrivingEnv, action_distance
 from brlcli.sim.roadnet import BRANCH_NAMES
 from brlcli.trainconfig import TrainConfig
 
@@ -59,6 +59,16 @@ ITERATION_COLUMNS = ("iteration", "driver", "episodes", "goals", "crashes", "dec
 """Columns of iterations.csv."""
 
 
+def teacher_distances(controls: tuple, stop_weight: float = 1.0) -> np.ndarray:
+    """(action, label) -> the teacher's distance: `action_distance`, and `stop_weight` for a driving action where the
+    label is `stop` (a missed stop costs that many needless ones)."""
+    out = np.array([[action_distance(a, b) for b in controls] for a in controls])
+    if STOP in controls:
+        stop = controls.index(STOP)
+        out[np.arange(len(controls)) != stop, stop] *= stop_weight
+    return out
+
+
 def fit_mixture(states: np.ndarray, commands: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
                 order_seed: list[int]) -> CommandAgent:
     """A command-conditioned mixture fitted by Algorithm 1's learning step to the teacher's reward of every action
@@ -68,7 +78,7 @@ def fit_mixture(states: np.ndarray, commands: np.ndarray, labels: np.ndarray, cf
     rho = cfg.imitation_rho
     params = replace(cfg.agent_params(), rho_init=rho, rho_final=rho, **IMITATION_THRESHOLDS)
     agent = CommandAgent(states.shape[1], len(controls), params)
-    rewards = -IMITATION_TEACHER * np.array([[action_distance(a, b) for b in controls] for a in controls])
+    rewards = -IMITATION_TEACHER * teacher_distances(controls, cfg.imitation_stop_weight)
     for i in np.random.default_rng(order_seed).permutation(len(labels)):
         state, branch = states[i], agent.branch(int(commands[i]))
         for a in range(len(controls)):

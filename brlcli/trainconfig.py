@@ -144,6 +144,8 @@ class TrainConfig:
     imitation_episodes: int = 300  # training episodes per iteration
     imitation_rho: float = 0.03  # the fit's creation distance: a new component wherever a recorded state is farther
     # than this (l_inf) from every component of its branch and an action's value falls 2 below its target
+    imitation_stop_weight: float = 1.0  # the teacher's cost of driving where the expert stands, in units of its cost
+    # of a needless stop (>= 1; outside the paper): the fit then stops where p(stand | state) > 1 / (1 + weight)
     driver_model: str | None = None  # the frozen driver of a brake gate's own run (set by brl train: the seed's
     # driver/model.npz; or an existing navigation model.npz or member set, then only the gate is trained)
 
@@ -224,6 +226,10 @@ class TrainConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (0 if "iterations" in name else 1):
                 raise BrlInputError(f"{name} must be an integer >= {0 if 'iterations' in name else 1}, got {value!r}")
+        if isinstance(self.imitation_stop_weight, bool) or not isinstance(self.imitation_stop_weight, int | float) \
+                or not 1 <= self.imitation_stop_weight <= 100:
+            raise BrlInputError(f"imitation_stop_weight must be a number in [1, 100], got "
+                                f"{self.imitation_stop_weight!r}")
         if isinstance(self.imitation_rho, bool) or not isinstance(self.imitation_rho, int | float) or \
                 not 0 < self.imitation_rho <= 1:
             raise BrlInputError(f"imitation_rho must be a distance in (0, 1], got {self.imitation_rho!r}")

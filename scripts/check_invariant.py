@@ -41,7 +41,8 @@ RETIRED_DEFAULTS: dict[str, Any] = {
 """Config and parameter keys that issue 33 retired, at the value every retired knob had when it was off."""
 ADDED_DEFAULTS: dict[str, Any] = {"privileged_brake_m": 0.0, "learning": "td", "imitation_iterations": 8,
                                   "imitation_episodes": 300, "imitation_rho": 0.03,
-                                  "decision_frames": 7, "stop_rule": "any"}
+                                  "decision_frames": 7, "stop_rule": "any",
+                                  "imitation_stop_weight": 1.0}
 """Config keys added since issue 33 (issue 35's training options), at their defaults (which change nothing)."""
 RETIRED_COLUMNS = ("r_heading", "r_lateral")
 """log.csv columns of retired knobs (always 0.0 when the knob was off)."""

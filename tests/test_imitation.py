@@ -97,6 +97,7 @@ def test_a_brake_gate_learns_over_an_imitating_driver_in_traffic(tmp_path: Path)
     ({"curve_every": 100}, "drop curve_every"),
     ({"privileged_brake_m": 8.0}, "drop privileged_brake_m"),
     ({"imitation_rho": 0.0}, "imitation_rho must be a distance in"),
+    ({"imitation_stop_weight": 0.5}, r"imitation_stop_weight must be a number in \[1, 100\]"),
     ({"driver_model": "models/brl_nav/seed_0", "brake_gate_steps": 10, "r_hazard": 20.0}, "no driver_model"),
 ])
 def test_imitation_options_are_checked_in_one_line(overrides: dict, message: str) -> None:
@@ -206,3 +207,24 @@ def test_a_run_with_the_road_user_stop_rule_labels_and_benches_by_it(tmp_path: P
     for overrides in ({"actions": "fine"}, {"learning": "td", "imitation_iterations": 8}, {"stop_rule": "never"}):
         with pytest.raises(BrlInputError, match="stop_rule"):
             TrainConfig(**{**TINY, "actions": "fine_stop", "stop_rule": "road_user", **overrides})
+
+
+def test_a_stop_weight_makes_the_fit_stop_where_the_expert_mostly_drives() -> None:
+    from brlcli.imitation import teacher_distances
+    from brlcli.sim.gym_env import ACTION_SETS
+
+    distances = teacher_distances(ACTION_SETS["fine_stop"], 3.0)
+    assert list(distances[:8, 8]) == [3.0] * 8 and list(distances[8, :8]) == [1.0] * 8 and distances[8, 8] == 0
+    assert np.array_equal(teacher_distances(ACTION_SETS["fine"], 3.0), teacher_distances(ACTION_SETS["fine"]))
+    rng = np.random.default_rng(0)
+    state = np.full(30, 1.0 / 30)
+    states = state + rng.normal(0, 1e-4, size=(40, 30))
+    labels = np.where(np.arange(40) % 10 < 3, 8, 0)  # the expert stands at 30 % of these visits
+    acted = {}
+    averaging = {"variant": "action-averaging-committee",  # the navigation preset's: Q[a, m] averages its targets
+                 "params": {"init_scatter": 0.001, "new_q": "nearest", "step_size": "action-visits"}}
+    for weight in (1.0, 3.0):
+        cfg = TrainConfig(**{**TINY, **averaging, "actions": "fine_stop", "imitation_stop_weight": weight})
+        agent = fit_mixture(states, np.full(40, 2), labels, cfg, order_seed=[0])
+        acted[weight] = agent.act(state, 2, rng, greedy=True)
+    assert acted == {1.0: 0, 3.0: 8}  # drives on at weight 1, stands at 3 (0.3 > 1 / (1 + 3))
