@@ -17,7 +17,7 @@ from brlcli.retired import RETIRED_CONFIG, RETIRED_PARAMS, drop_retired, refuse_
 from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams
 from brlcli.segnet import check_input_source
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import GATE_DRIVER_ACTIONS, STOP_RULES, DrivingEnv
+from brlcli.sim.gym_env import ACTION_SETS, GATE_DRIVER_ACTIONS, STOP, STOP_RULES, DrivingEnv
 from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
 from brlcli.sim.weather import get_weather
 
@@ -213,7 +213,7 @@ class TrainConfig:
         """The road-user stop rule: an imitating model whose own action set has the stop primitive."""
         if self.stop_rule not in STOP_RULES:
             raise BrlInputError(f"unknown stop_rule '{self.stop_rule}'; choose one of {', '.join(STOP_RULES)}")
-        if self.stop_rule != "any" and (self.learning != "imitation" or self.actions not in ("stop", "fine_stop")
+        if self.stop_rule != "any" and (self.learning != "imitation" or STOP not in ACTION_SETS[self.actions]
                                         or self.brake_gate_steps or self.driver_model is not None):
             raise BrlInputError(f"stop_rule={self.stop_rule} needs learning=imitation and an action set with the stop "
                                 "primitive (actions=stop or fine_stop), without a brake gate")
