@@ -13,8 +13,8 @@ Studies:
   on estimated labels, the four settings on the paper suite, a CoRL2017 subset for each GT set's best model on
   validation, the baselines (autopilot, MP on GT and estimated labels), a NoCrash subset, the report.
 - `segnet`: the shipped segmentation net's recipe (models/README.md): six recordings, then `brl train-seg`.
-- `navigation`: the navigation report (docs/navigation-report): committees, the navigation DQN, CoRL2017 and NoCrash
-  subsets for them and for the autopilot, MP and IL, the report.
+- `navigation`: the navigation report (docs/navigation-report): the navigation preset's models (what models/brl_nav
+  ships), the navigation DQN, CoRL2017 and NoCrash subsets for them and for the autopilot, MP and IL, the report.
 """
 
 from __future__ import annotations
@@ -130,13 +130,13 @@ def _paper_plan(opts: StudyOptions) -> list[Step]:
 
 
 def _navigation_plan(opts: StudyOptions) -> list[Step]:
-    """The navigation report's plan (docs/navigation-report): committees, the DQN, CoRL2017 and NoCrash subsets."""
+    """The navigation report's plan (docs/navigation-report): the preset's models, the DQN, CoRL2017 and NoCrash."""
     q = opts.quick
     seeds = opts.seeds_text
-    train_extra = ["--steps", "200", "--set", "committee=2"] if q else []
+    train_extra = ["--set", "imitation_iterations=1", "--set", "imitation_episodes=3", "--no-evaluate"] if q else []
     corl_n = ["--episodes", "3" if q else "0.2"]
     nocrash_n = ["--episodes", "3" if q else "0.2"]
-    steps = [Step("train_committees", ("train", "--task", "navigation", "--seeds", seeds, *train_extra,
+    steps = [Step("train_brl", ("train", "--task", "navigation", "--seeds", seeds, *train_extra,
                                        *_run_opts(opts), *_sets(opts), "--out", "train/nav"), "train/nav",
                   takes_set="train"),
              Step("train_dqn", ("train-rl", "--task", "navigation", "--steps", "2000" if q else "189000",
@@ -144,7 +144,7 @@ def _navigation_plan(opts: StudyOptions) -> list[Step]:
                                 "--out", "train/dqn_nav"), "train/dqn_nav")]
     bench_dirs: list[str] = []
     for suite, n in (("corl2017", corl_n), ("nocrash", nocrash_n)):
-        policies = [("brl", ("--models", "train/nav"), ("train_committees",)),
+        policies = [("brl", ("--models", "train/nav"), ("train_brl",)),
                     ("dqn", ("--agent", "dqn", "--model", "train/dqn_nav"), ("train_dqn",)),
                     ("il", ("--agent", "il"), ()), ("mp", ("--agent", "mp"), ())]
         if suite == "nocrash":
@@ -154,7 +154,7 @@ def _navigation_plan(opts: StudyOptions) -> list[Step]:
             steps.append(Step(f"{suite}_{name}", ("bench", "--suite", suite, *args, *n, *_run_opts(opts), "--out", out),
                               out, needs=needs))
             bench_dirs.append(out)
-    steps.append(_report_step(steps, bench_dirs, ["train/nav"]))
+    steps.append(_report_step(steps, bench_dirs, []))  # imitation runs have no TD learning curves (iterations.csv)
     return steps
 
 

@@ -50,16 +50,19 @@ start poses on seeds 0-17 (docs/lane-keeping-study.md, issue 34)."""
 TASK_PRESETS: dict[str, dict[str, Any]] = {
     "lane-keeping": {},
     "navigation": {"steps": 27000, "restart_below": None, "params": {"new_q": "nearest"},
-                   "branch_restart_below": [-5.0, -9.0, -9.0, -9.0], "committee": 7},
+                   "branch_restart_below": [-5.0, -9.0, -9.0, -9.0], "committee": 1, "learning": "imitation",
+                   "actions": "fine_stop", "decision_frames": 3, "stop_rule": "road_user",
+                   "traffic": ["empty", "regular", "dense"]},
 }
 """Overrides a task makes on top of the variant's preset (an option, --config or --set goes on top), chosen on the
-nav_validation suite (docs/navigation-study.md): navigation trains four branches, two thirds of the episodes at
-junctions, so six times the paper's t_max; without the trap restart, whose reward threshold is the lane-keeping
-task's; a new component starts from its nearest component's action values (`new_q = "nearest"`) rather than the
-optimistic constant, which otherwise makes an untried junction state look better than a known one; and a trap
-restart per branch (follow -5, turns -9), which restarts only a trapped branch; committees of seven, as shipped in
-models/brl_nav (the size chosen on nav_validation, docs/navigation-study.md section 9; `--set committee=1` trains
-single models; a lane-keeping method's committee is not the navigation preset's)."""
+validation suites (docs/navigation-study.md). Navigation (outside the paper; what models/brl_nav ships, section
+12.18): one command-conditioned mixture per seed that learns by imitation of the privileged expert (DAgger, 8
+iterations of 300 episodes in Empty, Regular and Dense town01 traffic), with the fine steering primitives and `stop`,
+a decision every 3 frames, and `stop` only where the state shows a road user. The TD keys below it are those of the
+empty-road committees of issue 20 (models/brl_nav_empty), which `--set learning=td --set actions=paper --set
+decision_frames=7 --set stop_rule=any --set 'traffic=[]' --set committee=7` trains: six times the paper's t_max,
+no lane-keeping trap restart, a new component starting from its nearest component's action values (`new_q =
+"nearest"`), a trap restart per branch (follow -5, turns -9)."""
 
 LEARNING = ("td", "imitation")
 """How a navigation model learns (`TrainConfig.learning`): TD learning on the reward (the paper's), or imitation."""
@@ -215,8 +218,9 @@ class TrainConfig:
             raise BrlInputError(f"unknown stop_rule '{self.stop_rule}'; choose one of {', '.join(STOP_RULES)}")
         if self.stop_rule != "any" and (self.learning != "imitation" or STOP not in ACTION_SETS[self.actions]
                                         or self.brake_gate_steps or self.driver_model is not None):
-            raise BrlInputError(f"stop_rule={self.stop_rule} needs learning=imitation and an action set with the stop "
-                                "primitive (actions=stop or fine_stop), without a brake gate")
+            raise BrlInputError(f"stop_rule={self.stop_rule} (the navigation preset's) needs learning=imitation and an "
+                                "action set with the stop primitive (actions=stop or fine_stop), without a brake "
+                                "gate; add --set stop_rule=any for any other recipe")
 
     def _check_learning(self) -> None:
         """Imitation's options: a navigation model of its own, none of TD learning's hooks."""

@@ -80,12 +80,14 @@ def plan(quick: bool) -> list[tuple[str, list[str]]]:
                                                "--no-evaluate", "--out", "lk_restart"]),
         ("train lane keeping (estimated input)", ["train", "--input", "estimated", "--steps", "300", "--seed", "5",
                                                   "--no-evaluate", "--out", "lk_te"]),
-        ("train navigation (committee of 2)", ["train", "--task", "navigation", "--steps", "1500", "--seed", "0",
-                                               "--set", "committee=2", "--out", "nav"]),
-        ("train navigation (curve)", ["train", "--task", "navigation", "--steps", "1000", "--curve-every", "500",
-                                      "--set", "committee=1", "--seed", "1", "--no-evaluate", "--out", "nav_curve"]),
-        ("assemble the shipped committee", ["train", "--task", "navigation", "--variant", "action-averaging-restart",
-                                            "--seeds", "0", "--set", "committee=7", "--out", "nav_shipped",
+        ("train navigation (committee of 2)", ["train", "--task", "navigation", "{nav_td}", "--steps", "1500",
+                                               "--seed", "0", "--set", "committee=2", "--out", "nav"]),
+        ("train navigation (curve)", ["train", "--task", "navigation", "{nav_td}", "--steps", "1000", "--curve-every",
+                                      "500", "--set", "committee=1", "--seed", "1", "--no-evaluate",
+                                      "--out", "nav_curve"]),
+        ("assemble the shipped committee", ["train", "--task", "navigation", "{nav_td}", "--variant",
+                                            "action-averaging-restart", "--seeds", "0", "--set", "committee=7",
+                                            "--out", "nav_shipped",
                                             "--resume"]),  # the shipped members' variant (before issue 34's default)
         ("train-rl", ["train-rl", "--steps", "1200", "--eval-every", "600", "--eval-suite", "none", "--seed", "0",
                       "--out", "drl"]),
@@ -116,14 +118,29 @@ def plan(quick: bool) -> list[tuple[str, list[str]]]:
     return steps
 
 
+NAV_TD_SETS = ["--set", "learning=td", "--set", "actions=paper", "--set", "decision_frames=7", "--set",
+               "stop_rule=any", "--set", "traffic=[]"]
+"""What `{nav_td}` stands for where the navigation preset learns by imitation (since issue 35's recipe became it): the
+TD-learning empty-road recipe that the preset was before; nothing on a side whose preset is still that recipe."""
+
+
+def _nav_td(src: Path) -> list[str]:
+    """The options that make `src`'s navigation preset the TD-learning empty-road recipe."""
+    probe = "from brlcli.trainconfig import TASK_PRESETS; print(TASK_PRESETS['navigation'].get('learning', 'td'))"
+    learning = subprocess.run([sys.executable, "-c", probe], env={**os.environ, "PYTHONPATH": str(src)},
+                              capture_output=True, text=True, check=True).stdout.strip()
+    return NAV_TD_SETS if learning != "td" else []
+
+
 def run_side(src: Path, out: Path, models: Path, quick: bool) -> None:
     """Run every step of the plan with the brl of `src` in `out`, the shipped models read from `models`."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "grid.toml").write_text(GRID)
-    shutil.copytree(models / "brl_nav" / "seed_0", out / "nav_shipped" / "seed_0")
+    shutil.copytree(models / "brl_nav_empty" / "seed_0", out / "nav_shipped" / "seed_0")
     env = {**os.environ, "PYTHONPATH": str(src), "BRL_MODELS_DIR": str(models), "BRL_GIT_COMMIT": "check"}
+    nav_td = _nav_td(src)
     for name, args in plan(quick):
-        args = [a.replace("{models}", str(models)) for a in args]
+        args = [b for a in args for b in (nav_td if a == "{nav_td}" else [a.replace("{models}", str(models))])]
         print(f"  [{src.name}] {name}: brl {' '.join(args)}", flush=True)
         done = subprocess.run([sys.executable, "-m", "brlcli", *args], cwd=out, env=env, capture_output=True,
                               text=True, check=False)

@@ -1,6 +1,6 @@
 """Issue 35's crash anatomy: what a navigation model's collisions in traffic are.
 
-    python scripts/crash_anatomy.py --model models/brl_nav/seed_0 --traffic dense --episodes 40 \
+    python scripts/crash_anatomy.py --model models/brl_nav_empty/seed_0 --traffic dense --episodes 40 \
         [--workers 2] [--json runs/s36/anatomy_dense.json]
 
 The model (a navigation model.npz, brake-gated too, or a seed directory of committee members member_<k>/model.npz,

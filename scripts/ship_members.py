@@ -1,12 +1,15 @@
-"""Copy the finished members of a committee training run into a shipped model directory.
+"""Copy the finished members of a committee training run, or the finished seeds of a one-model run, into a
+shipped model directory.
 
-    python scripts/ship_members.py runs/s30/committee7 models/brl_nav
+    python scripts/ship_members.py runs/s30/committee7 models/brl_nav_empty
+    python scripts/ship_members.py runs/s43/rule9 models/brl_nav
 
-For every `seed_<s>/member_<k>` of the run that holds a `summary.json` (a finished member), writes
-`<dest>/seed_<s>/member_<k>/` with its `config.json`, `summary.json` and `model.npz`, the model re-saved
-zip-compressed (the same arrays, about a third of the size; `np.load` reads both) and checked array for array.
-Members already shipped are left as they are. A later `brl train --task navigation --set committee=K --resume` on a
-copy of `<dest>` finishes the missing members and writes each seed's committee (`models/README.md`).
+For every `seed_<s>/member_<k>` (or `seed_<s>` without members) of the run that holds a `summary.json` (a finished
+run), writes `<dest>/seed_<s>/member_<k>/` (or `<dest>/seed_<s>/`) with its `config.json`, `summary.json`, an
+imitation run's `iterations.csv` and `model.npz`, the model re-saved zip-compressed (the same arrays, a third of the
+size; `np.load` reads both) and checked array for array. Runs already shipped are left as they are. For committees, a
+later `brl train ... --set committee=K --resume` on a copy of `<dest>` finishes the missing members and writes each
+seed's committee (`models/README.md`).
 """
 
 from __future__ import annotations
@@ -36,27 +39,30 @@ def ship_member(src: Path, dst: Path) -> None:
             os.unlink(tmp)
             raise SystemExit(f"{src}: the compressed copy differs from the model")
     os.replace(tmp, dst / "model.npz")
-    for name in ("config.json", "summary.json"):  # summary last: it marks the member as finished
+    for name in ("iterations.csv", "config.json", "summary.json"):  # summary last: it marks the run as finished
+        if not (src / name).exists() and name == "iterations.csv":
+            continue
         shutil.copyfile(src / name, dst / f"{name}.tmp")
         os.replace(dst / f"{name}.tmp", dst / name)
 
 
 def main() -> None:
-    """Ship every finished member of a committee run that is not shipped yet."""
+    """Ship every finished member (or one-model seed) of a run that is not shipped yet."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run", type=Path)
     ap.add_argument("dest", type=Path)
     args = ap.parse_args()
     shipped = 0
-    for summary in sorted(args.run.glob("seed_*/member_*/summary.json")):
+    finished = [s for s in args.run.glob("seed_*/summary.json") if not any(s.parent.glob("member_*"))]
+    for summary in sorted(args.run.glob("seed_*/member_*/summary.json")) + sorted(finished):
         src = summary.parent
-        dst = args.dest / src.parent.name / src.name
+        dst = args.dest / src.relative_to(args.run)
         if (dst / "summary.json").exists():
             continue
         ship_member(src, dst)
         shipped += 1
-    total = len(list(args.dest.glob("seed_*/member_*/summary.json")))
-    print(f"shipped {shipped} members; {args.dest} holds {total}", file=sys.stderr)
+    total = len(list(args.dest.glob("seed_*/member_*/summary.json")) + list(args.dest.glob("seed_*/summary.json")))
+    print(f"shipped {shipped} runs; {args.dest} holds {total}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -297,18 +297,22 @@ def test_every_shipped_model_set_benches_as_shipped(tmp_path: Path) -> None:
     from brlcli.policy import BRLPolicy
 
     root = Path(__file__).resolve().parents[1] / "models"
-    for name in ("brl_gt", "brl_gt_paper", "brl_te", "brl_nav"):
+    for name in ("brl_gt", "brl_gt_paper", "brl_te", "brl_nav", "brl_nav_empty"):
         found = find_models(None, [str(root / name)])
         assert [n for n, _ in found] == [f"{name}/seed_{k}" for k in range(9)], name
         for policy_name, path in found:
             policy = BRLPolicy(policy_name, path)
-            assert policy.task == ("navigation" if name == "brl_nav" else "lane-keeping")
-            if name == "brl_nav":
+            assert policy.task == ("navigation" if name.startswith("brl_nav") else "lane-keeping")
+            if name == "brl_nav_empty":
                 assert isinstance(policy.agent, CommitteeAgent) and len(policy.agent.members) == 7
                 assert "navigation, no brake" in policy.setting
-    assert find_models(str(root / "brl_nav" / "seed_3"), None) == [("seed_3", str(root / "brl_nav" / "seed_3"))]
+            if name == "brl_nav":  # the imitating mixtures: stop among their actions, only for road users in view
+                assert policy.frames_per_decision == 3 and len(policy.actions) == 9
+                assert "imitation, stop only for road users in view" in policy.setting
+    empty = root / "brl_nav_empty"
+    assert find_models(str(empty / "seed_3"), None) == [("seed_3", str(empty / "seed_3"))]
     with pytest.raises(BrlInputError, match=r"committee members but no committee model\.npz"):
-        find_models(str(root / "brl_nav"), None)  # a set of member sets is --models, not --model
+        find_models(str(empty), None)  # a set of member sets is --models, not --model
     (tmp_path / "empty").mkdir()
     with pytest.raises(BrlInputError, match=r"holds no model\.npz files"):
         find_models(None, [str(tmp_path / "empty")])

@@ -98,7 +98,7 @@ def test_a_brake_gate_learns_over_an_imitating_driver_in_traffic(tmp_path: Path)
     ({"privileged_brake_m": 8.0}, "drop privileged_brake_m"),
     ({"imitation_rho": 0.0}, "imitation_rho must be a distance in"),
     ({"imitation_stop_weight": 0.5}, r"imitation_stop_weight must be a number in \[1, 100\]"),
-    ({"driver_model": "models/brl_nav/seed_0", "brake_gate_steps": 10, "r_hazard": 20.0}, "no driver_model"),
+    ({"driver_model": "models/brl_nav_empty/seed_0", "brake_gate_steps": 10, "r_hazard": 20.0}, "no driver_model"),
 ])
 def test_imitation_options_are_checked_in_one_line(overrides: dict, message: str) -> None:
     with pytest.raises(BrlInputError, match=message):
@@ -106,13 +106,19 @@ def test_imitation_options_are_checked_in_one_line(overrides: dict, message: str
 
 
 def test_brl_train_imitation_from_the_cli(tmp_path: Path) -> None:
-    out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "brlcli", "train", "--task", "navigation", "--set", "learning=imitation",
-           "--set", "committee=1", "--set", "imitation_iterations=1", "--set", "imitation_episodes=2",
-           "--set", "actions=fine", "--no-evaluate", "--out", str(out)]
+    out = tmp_path / "run"  # the navigation preset is the imitation recipe: only its budget is cut here
+    cmd = [sys.executable, "-m", "brlcli", "train", "--task", "navigation", "--set", "imitation_iterations=1",
+           "--set", "imitation_episodes=2", "--no-evaluate", "--out", str(out)]
     done = subprocess.run(cmd, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert "imitation" in done.stdout and (out / "seed_0" / "iterations.csv").exists()
+    saved = json.loads((out / "seed_0" / "config.json").read_text())["config"]
+    assert (saved["learning"], saved["actions"], saved["stop_rule"], saved["decision_frames"]) == \
+        ("imitation", "fine_stop", "road_user", 3)
+    fine = subprocess.run([*cmd[:-2], "--set", "actions=fine", "--out", str(tmp_path / "fine")],
+                          capture_output=True, text=True)  # the preset's rule needs stop: say how to drop it
+    assert fine.returncode == 2 and "add --set stop_rule=any" in fine.stderr and "Traceback" not in fine.stderr
+    assert not (tmp_path / "fine").exists()
     bad = subprocess.run([*cmd[:-2], "--set", "imitation_episodes=0", "--out", str(tmp_path / "bad")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "imitation_episodes must be" in bad.stderr + bad.stdout

@@ -22,6 +22,12 @@ from brlcli.sim.town import load_town
 from brlcli.train import LOG_COLUMNS, train_run
 from brlcli.trainconfig import TrainConfig, resolve_train_config
 
+TD_NAVIGATION = {"learning": "td", "actions": "paper", "decision_frames": 7, "stop_rule": "any", "traffic": []}
+"""The navigation preset's keys that make it the TD-learning empty-road recipe of models/brl_nav_empty (which adds
+committee=7)."""
+TD_NAVIGATION_SETS = ["--set", "learning=td", "--set", "actions=paper", "--set", "decision_frames=7",
+                      "--set", "stop_rule=any", "--set", "traffic=[]"]
+
 
 @pytest.fixture(scope="module")
 def net01() -> RoadNetwork:
@@ -149,7 +155,8 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_bench_refuses_a_navigation_model_on_a_suite_without_commands(tmp_path: Path, brl_in_process) -> None:
-    r = _cli("train", "--task", "navigation", "--steps", "40", "--no-evaluate", "--out", str(tmp_path / "m"))
+    r = _cli("train", "--task", "navigation", *TD_NAVIGATION_SETS, "--steps", "40", "--no-evaluate",
+             "--out", str(tmp_path / "m"))
     assert r.returncode == 0, r.stderr
     model = tmp_path / "m" / "seed_0"
     for suite in ("paper", "validation"):
@@ -383,8 +390,8 @@ def load_navigation_agent_checked(path: Path):
     ({"brake_gate_steps": -5}, "brake_gate_steps must be an integer >= 0"),
     ({"driver_model": "README.md"}, "is not a navigation model"),
     ({"driver_model": "models/brl_gt/seed_0"}, "is not a navigation model"),
-    ({"driver_model": "models/brl_nav/seed_0/member_0/model.npz", "committee": 3}, "drop committee"),
-    ({"driver_model": "models/brl_nav/seed_0", "ghost_traffic": True}, "drop ghost_traffic"),
+    ({"driver_model": "models/brl_nav_empty/seed_0/member_0/model.npz", "committee": 3}, "drop committee"),
+    ({"driver_model": "models/brl_nav_empty/seed_0", "ghost_traffic": True}, "drop ghost_traffic"),
 ])
 def test_brake_gate_options_are_checked_in_one_line(overrides: dict, message: str) -> None:
     base = {"task": "navigation", "brake_gate_steps": 100, "traffic": ["regular"], "r_hazard": 20.0}
@@ -407,7 +414,7 @@ def test_a_privileged_brake_drivers_gate_learns_without_it() -> None:
     cfg = TrainConfig(task="navigation", traffic=["regular"], privileged_brake_m=8.0, brake_gate_steps=50,
                       r_hazard=20.0, actions="fine")
     assert cfg.driver_config().traffic == ["regular"] and cfg.driver_config().privileged_brake_m == 8.0
-    assert cfg.gate_config("models/brl_nav/seed_0").privileged_brake_m == 0.0
+    assert cfg.gate_config("models/brl_nav_empty/seed_0").privileged_brake_m == 0.0
 
 
 def test_a_fine_braking_model_says_it_has_the_stop_primitive(tmp_path: Path) -> None:
@@ -424,20 +431,29 @@ def test_a_brake_gate_drives_over_a_shipped_member_set() -> None:
     from brlcli.agent.command import CommitteeAgent
     from brlcli.train import new_learner
 
-    cfg = TrainConfig(task="navigation", driver_model="models/brl_nav/seed_0", traffic=["dense"], r_hazard=20.0)
+    cfg = TrainConfig(task="navigation", driver_model="models/brl_nav_empty/seed_0", traffic=["dense"], r_hazard=20.0)
     learner = new_learner(cfg)
     assert isinstance(learner.driver, CommitteeAgent) and len(learner.driver.members) == 7  # type: ignore[attr-defined]
     assert cfg.env_actions == "stop" and not cfg.trains_driver_then_gate
 
 
-def test_the_navigation_preset_trains_the_shipped_committee_size() -> None:
+def test_the_navigation_preset_trains_what_is_shipped() -> None:
     from brlcli.config import Layer
 
-    shipped = json.loads(Path("models/brl_nav/seed_0/member_0/config.json").read_text())
-    n_members = len(list(Path("models/brl_nav/seed_0").glob("member_*")))
-    assert resolve_train_config([Layer("--task", {"task": "navigation"})]).committee == n_members == 7
-    assert shipped["config"]["steps"] == resolve_train_config([Layer("--task", {"task": "navigation"})]).steps
-    over_driver = resolve_train_config([Layer("--set", {"task": "navigation", "driver_model": "models/brl_nav/seed_0",
+    preset = resolve_train_config([Layer("--task", {"task": "navigation"})]).to_dict()
+    for seed_dir in sorted(Path("models/brl_nav").glob("seed_*")):
+        shipped = json.loads((seed_dir / "config.json").read_text())["config"]
+        assert not list(seed_dir.glob("member_*")) and (seed_dir / "model.npz").exists()
+        # the shipped runs were trained without the end-of-run evaluation, before imitation_stop_weight (1) existed
+        assert {**preset, "seed": shipped["seed"], "evaluate": False, "imitation_stop_weight": 1.0} == \
+            {**shipped, "imitation_stop_weight": 1.0}, seed_dir
+    empty = json.loads(Path("models/brl_nav_empty/seed_0/member_0/config.json").read_text())["config"]
+    td = resolve_train_config([Layer("--set", {"task": "navigation", **TD_NAVIGATION, "committee": 7})])
+    assert td.committee == len(list(Path("models/brl_nav_empty/seed_0").glob("member_*"))) == 7
+    assert (td.steps, td.branch_restart_below, td.params) == (empty["steps"], empty["branch_restart_below"],
+                                                              empty["params"])
+    over_driver = resolve_train_config([Layer("--set", {"task": "navigation", **TD_NAVIGATION,
+                                                        "driver_model": "models/brl_nav_empty/seed_0",
                                                         "traffic": ["dense"], "r_hazard": 20.0})])
     assert over_driver.committee == 1  # a gate over a given driver is one agent
 
@@ -446,7 +462,7 @@ def test_gate_files_of_retired_knobs_are_refused_in_one_line(tmp_path: Path) -> 
     from brlcli.agent.bayes import save_model_arrays
     from brlcli.agent.gate import BrakeGatedAgent
 
-    gated = BrakeGatedAgent(CommandAgent.load("models/brl_nav/seed_0/member_0/model.npz"))
+    gated = BrakeGatedAgent(CommandAgent.load("models/brl_nav_empty/seed_0/member_0/model.npz"))
     arrays = gated.to_arrays()
     save_model_arrays(tmp_path / "scaled.npz", {**arrays, "gate_scale": np.array(10.0)})
     with pytest.raises(BrlInputError, match=r"'gate_scale' was retired.*618b968"):
@@ -469,7 +485,8 @@ def test_a_driver_of_another_state_is_refused_before_anything_is_written(tmp_pat
                               driver_model=str(tmp_path / "speed_driver")), tmp_path / "bad")
     assert not (tmp_path / "bad").exists()
     result = subprocess.run([sys.executable, "-m", "brlcli", "train", "--task", "navigation", "--seeds", "0",
-                             "--set", f"driver_model={tmp_path / 'speed_driver'}", "--set", "state=nearness",
+                             *TD_NAVIGATION_SETS, "--set", f"driver_model={tmp_path / 'speed_driver'}",
+                             "--set", "state=nearness",
                              "--set", 'traffic=["dense"]', "--set", "r_hazard=20", "--steps", "10", "--no-evaluate",
                              "--out", str(tmp_path / "bad_cli")], capture_output=True, text=True)
     assert result.returncode == 2 and "need 33" in result.stderr and "Traceback" not in result.stderr

@@ -97,7 +97,7 @@ class LaneKeepingCommittee:
 
 def committee_members(path: str | os.PathLike[str]) -> list[Path]:
     """The members' model files of a committee run directory without a model.npz of its own (a shipped member set
-    such as models/brl_nav/seed_0), in member order; [] for anything else."""
+    such as models/brl_nav_empty/seed_0), in member order; [] for anything else."""
     run = Path(path)
     if not run.is_dir() or (run / "model.npz").exists():
         return []

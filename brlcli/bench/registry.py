@@ -76,7 +76,7 @@ def build_spec(spec: PolicySpec) -> Policy:
 
 
 COMMITTEE_MEMBER_GLOBS = ("member_*/model.npz", "*/member_*/model.npz")
-"""Where a committee run (or a shipped set of its members, models/brl_nav) keeps its members' models."""
+"""Where a committee run (or a shipped set of its members, models/brl_nav_empty) keeps its members' models."""
 
 
 def _members_without_committee(where: str) -> str:
