@@ -497,6 +497,10 @@ def test_bad_runs_directory_is_refused(tmp_path: Path) -> None:
     for runs in ([tmp_path / "missing"], [tmp_path / "empty"]):
         with pytest.raises(BrlInputError):
             build_report([res], runs, out=tmp_path / "rep")
+    (tmp_path / "imitation" / "seed_0").mkdir(parents=True)  # learning=imitation: no TD learning curve to plot
+    (tmp_path / "imitation" / "seed_0" / "iterations.csv").write_text("iteration,driver\n0,expert\n")
+    with pytest.raises(BrlInputError, match=r"holds imitation runs .* drop it"):
+        build_report([res], [tmp_path / "imitation"], out=tmp_path / "rep")
     with pytest.raises(BrlInputError, match="unknown report format"):
         build_report([res], out=tmp_path / "rep", formats="md,pdf")
     assert not (tmp_path / "rep").exists()

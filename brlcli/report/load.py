@@ -267,6 +267,10 @@ def _run_paths(item: Path) -> list[Path]:
     found = sorted(p for p in item.iterdir() if p.is_dir() and (_log_dir(p) / "log.csv").is_file()) \
         if item.is_dir() else []
     if not found:
+        if (item / "iterations.csv").is_file() or any(item.glob("*/iterations.csv")):
+            raise BrlInputError(f"{item} holds imitation runs (learning=imitation: iterations.csv, no log.csv); --runs "
+                                "reads TD runs' learning curves: drop it (each run's iterations.csv has its DAgger "
+                                "iterations)")
         raise BrlInputError(f"{item} holds no training runs (no log.csv in it or its subdirectories)")
     return found
 
