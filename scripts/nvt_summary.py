@@ -2,12 +2,14 @@
 
     python scripts/nvt_summary.py runs/s38/nvt_fine_ghost [more bench directories]
     python scripts/nvt_summary.py --seeds runs/s43/nvt_rule9_s*    # and mean, std, best and worst over them
+    python scripts/nvt_summary.py --seeds --conditions runs/s44/nocrash20_unsel_s*   # and NoCrash per condition
 
 Reads each directory's results.jsonl (nav_validation_traffic or NoCrash): per task (empty, regular, dense) the
 episodes reaching the goal, those ended by a crash in brackets, and the share of all frames partly in the opposite
 lane. With `--seeds`, the directories are one model per seed: a last line gives each level's mean and standard
 deviation (population, over the seeds) of the goals and crashes, and the best and worst seed by total goals (then
-fewest crashes). Outside the paper.
+fewest crashes). With `--conditions` (NoCrash, CoRL2017), the goals per task and condition pooled over the
+directories, and each task's success over all of them. Outside the paper.
 """
 
 from __future__ import annotations
@@ -60,10 +62,32 @@ def summary(bench_dir: Path) -> str:
     return f"{bench_dir}: " + " | ".join(parts) + f" | opposite lane {100 * otherlane:.1f} % of frames"
 
 
+CONDITIONS = ("training", "new_weather", "new_town", "new_town_weather")
+
+
+def condition_summary(bench_dirs: list[Path]) -> str:
+    """Per task: goals / episodes per condition pooled over the directories, and the task's success share."""
+    rows = [r for d in bench_dirs for r in _rows(d)]
+    lines = []
+    for task in dict.fromkeys(r["task"] for r in rows):
+        sel = [r for r in rows if r["task"] == task]
+        parts = []
+        for cond in CONDITIONS:
+            c = [r for r in sel if r["condition"] == cond]
+            if c:
+                parts.append(f"{cond} {sum(r['success'] for r in c)}/{len(c)}")
+        goals = sum(r["success"] for r in sel)
+        lines.append(f"{task}: {' | '.join(parts)} | all {goals}/{len(sel)} = {100 * goals / len(sel):.1f} %")
+    return "\n".join(lines)
+
+
 if __name__ == "__main__":
-    seeds = sys.argv[1:2] == ["--seeds"]
-    dirs = [Path(a) for a in sys.argv[1 + seeds:]]
+    args = sys.argv[1:]
+    seeds, conditions = "--seeds" in args, "--conditions" in args
+    dirs = [Path(a) for a in args if a not in ("--seeds", "--conditions")]
     for d in dirs:
         print(summary(d))
     if seeds and dirs:
         print(seed_summary(dirs))
+    if conditions and dirs:
+        print(condition_summary(dirs))
