@@ -58,11 +58,11 @@ TASK_PRESETS: dict[str, dict[str, Any]] = {
 validation suites (docs/navigation-study.md). Navigation (outside the paper; what models/brl_nav ships, section
 12.18): one command-conditioned mixture per seed that learns by imitation of the privileged expert (DAgger, 8
 iterations of 300 episodes in Empty, Regular and Dense town01 traffic), with the fine steering primitives and `stop`,
-a decision every 3 frames, and `stop` only where the state shows a road user. Its TD keys (steps, the restarts,
-params.new_q; imitation does not use them) are those of the empty-road committees of issue 20 (models/brl_nav_empty),
-which `--set learning=td --set actions=paper --set decision_frames=7 --set stop_rule=any --set 'traffic=[]' --set
-committee=7` trains: six times the paper's t_max, no lane-keeping trap restart, a new component starting from its
-nearest component's action values (`new_q = "nearest"`), a trap restart per branch (follow -5, turns -9)."""
+a decision every 3 frames, and `stop` only where the state shows a road user; its fit uses the agent parameters
+below (`new_q = "nearest"`: a new component starts from its nearest component's action values). Its steps and
+restarts (unused by imitation) are those of the empty-road committees of issue 20 (models/brl_nav_empty), which `--set
+learning=td --set actions=paper --set decision_frames=7 --set stop_rule=any --set 'traffic=[]' --set committee=7`
+trains: six times the paper's t_max, no lane-keeping trap restart, a trap restart per branch (follow -5, turns -9)."""
 
 LEARNING = ("td", "imitation")
 """How a navigation model learns (`TrainConfig.learning`): TD learning on the reward (the paper's), or imitation."""
