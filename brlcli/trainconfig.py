@@ -64,6 +64,18 @@ restarts (unused by imitation) are those of the empty-road committees of issue 2
 learning=td --set actions=paper --set decision_frames=7 --set stop_rule=any --set 'traffic=[]' --set committee=7`
 trains: six times the paper's t_max, no lane-keeping trap restart, a trap restart per branch (follow -5, turns -9)."""
 
+NAVIGATION_TD_RECIPE: dict[str, Any] = {"learning": "td", "actions": "paper", "decision_frames": 7, "stop_rule": "any",
+                                        "traffic": [], "committee": 7}
+"""The keys that turn the navigation preset back into the empty-road TD committees of issue 20 (models/brl_nav_empty;
+`--set learning=td --set actions=paper --set decision_frames=7 --set stop_rule=any --set 'traffic=[]' --set
+committee=7`)."""
+
+
+def set_options(values: dict[str, Any]) -> list[str]:
+    """Config values as `brl train` options: `--set KEY=VALUE` each, VALUE in JSON (which --set reads)."""
+    return [a for key, value in values.items() for a in ("--set", f"{key}={json.dumps(value)}")]
+
+
 LEARNING = ("td", "imitation")
 """How a navigation model learns (`TrainConfig.learning`): TD learning on the reward (the paper's), or imitation."""
 
@@ -392,8 +404,6 @@ def resolve_train_config(layers: Sequence[Layer], default_variant: str = DEFAULT
     base = merge_layer(defaults, {**VARIANT_PRESETS[variant], "variant": variant}, "", defaults, open_tables=OPEN)
     task = next((layer.values["task"] for layer in reversed(layers) if "task" in layer.values), defaults["task"])
     preset = TASK_PRESETS.get(task, {}) if isinstance(task, str) else {}  # an unknown task: TrainConfig says so
-    if any(layer.values.get("driver_model") is not None for layer in layers):
-        preset = {**preset, "committee": 1}  # a gate over a given driver is one agent, whatever the presets say
     base = merge_layer(base, preset, "", defaults, open_tables=OPEN)
     cfg = resolve(TrainConfig, layers, "training", base=base, defaults=defaults, open_tables=OPEN)
     try:

@@ -118,10 +118,14 @@ def plan(quick: bool) -> list[tuple[str, list[str]]]:
     return steps
 
 
-NAV_TD_SETS = ["--set", "learning=td", "--set", "actions=paper", "--set", "decision_frames=7", "--set",
-               "stop_rule=any", "--set", "traffic=[]"]
-"""What `{nav_td}` stands for where the navigation preset learns by imitation (since issue 35's recipe became it): the
-TD-learning empty-road recipe that the preset was before; nothing on a side whose preset is still that recipe."""
+def _nav_td_options() -> list[str]:
+    """What `{nav_td}` stands for where the navigation preset learns by imitation (since issue 35's recipe became it):
+    the TD-learning empty-road recipe that the preset was before (`NAVIGATION_TD_RECIPE`), less its committee size,
+    which each step sets itself."""
+    sys.path.insert(0, str(ROOT))
+    from brlcli.trainconfig import NAVIGATION_TD_RECIPE, set_options
+
+    return set_options({k: v for k, v in NAVIGATION_TD_RECIPE.items() if k != "committee"})
 
 
 def _nav_td(src: Path) -> list[str]:
@@ -129,7 +133,7 @@ def _nav_td(src: Path) -> list[str]:
     probe = "from brlcli.trainconfig import TASK_PRESETS; print(TASK_PRESETS['navigation'].get('learning', 'td'))"
     learning = subprocess.run([sys.executable, "-c", probe], env={**os.environ, "PYTHONPATH": str(src)},
                               capture_output=True, text=True, check=True).stdout.strip()
-    return NAV_TD_SETS if learning != "td" else []
+    return _nav_td_options() if learning != "td" else []
 
 
 def run_side(src: Path, out: Path, models: Path, quick: bool) -> None:

@@ -39,9 +39,8 @@ def ship_member(src: Path, dst: Path) -> None:
             os.unlink(tmp)
             raise SystemExit(f"{src}: the compressed copy differs from the model")
     os.replace(tmp, dst / "model.npz")
-    for name in ("iterations.csv", "config.json", "summary.json"):  # summary last: it marks the run as finished
-        if not (src / name).exists() and name == "iterations.csv":
-            continue
+    log = ["iterations.csv"] if (src / "iterations.csv").exists() else []  # an imitation run's DAgger iterations
+    for name in (*log, "config.json", "summary.json"):  # summary last: it marks the run as finished
         shutil.copyfile(src / name, dst / f"{name}.tmp")
         os.replace(dst / f"{name}.tmp", dst / name)
 

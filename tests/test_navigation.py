@@ -20,13 +20,11 @@ from brlcli.sim.navroutes import JUNCTION_KINDS, junction_routes, validation_rou
 from brlcli.sim.roadnet import Command, RoadNetwork
 from brlcli.sim.town import load_town
 from brlcli.train import LOG_COLUMNS, train_run
-from brlcli.trainconfig import TrainConfig, resolve_train_config
+from brlcli.trainconfig import NAVIGATION_TD_RECIPE, TrainConfig, resolve_train_config, set_options
 
-TD_NAVIGATION = {"learning": "td", "actions": "paper", "decision_frames": 7, "stop_rule": "any", "traffic": []}
-"""The navigation preset's keys that make it the TD-learning empty-road recipe of models/brl_nav_empty (which adds
-committee=7)."""
-TD_NAVIGATION_SETS = ["--set", "learning=td", "--set", "actions=paper", "--set", "decision_frames=7",
-                      "--set", "stop_rule=any", "--set", "traffic=[]"]
+TD_NAVIGATION = {**NAVIGATION_TD_RECIPE, "committee": 1}
+"""The empty-road TD recipe of models/brl_nav_empty, one agent per seed (a committee costs 7x the test's time)."""
+TD_NAVIGATION_SETS = set_options(TD_NAVIGATION)
 
 
 @pytest.fixture(scope="module")
@@ -448,14 +446,17 @@ def test_the_navigation_preset_trains_what_is_shipped() -> None:
         assert {**preset, "seed": shipped["seed"], "evaluate": False, "imitation_stop_weight": 1.0} == \
             {**shipped, "imitation_stop_weight": 1.0}, seed_dir
     empty = json.loads(Path("models/brl_nav_empty/seed_0/member_0/config.json").read_text())["config"]
-    td = resolve_train_config([Layer("--set", {"task": "navigation", **TD_NAVIGATION, "committee": 7})])
+    td = resolve_train_config([Layer("--set", {"task": "navigation", **NAVIGATION_TD_RECIPE})])
     assert td.committee == len(list(Path("models/brl_nav_empty/seed_0").glob("member_*"))) == 7
     assert (td.steps, td.branch_restart_below, td.params) == (empty["steps"], empty["branch_restart_below"],
                                                               empty["params"])
     over_driver = resolve_train_config([Layer("--set", {"task": "navigation", **TD_NAVIGATION,
                                                         "driver_model": "models/brl_nav_empty/seed_0",
                                                         "traffic": ["dense"], "r_hazard": 20.0})])
-    assert over_driver.committee == 1  # a gate over a given driver is one agent
+    assert over_driver.committee == 1  # the preset's one agent: a gate over a given driver is one agent
+    with pytest.raises(BrlInputError, match="drop committee"):
+        resolve_train_config([Layer("--set", {"task": "navigation", **NAVIGATION_TD_RECIPE, "r_hazard": 20.0,
+                                              "driver_model": "models/brl_nav_empty/seed_0", "traffic": ["dense"]})])
 
 
 def test_gate_files_of_retired_knobs_are_refused_in_one_line(tmp_path: Path) -> None:
