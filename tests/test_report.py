@@ -433,6 +433,24 @@ def test_deterministic_rerun_and_outputs(tmp_path: Path) -> None:
     assert tb_has_booktabs(tmp_path / "a" / "tables" / "paper_test_table.tex")
 
 
+def test_an_archived_results_directory_reports_as_the_original(tmp_path: Path) -> None:
+    res = write_results(tmp_path / "r", model_set("TGDG"))
+    script = Path(__file__).resolve().parents[1] / "scripts" / "archive_bench.py"
+    for dest in ("a1", "a2"):
+        subprocess.run([sys.executable, str(script), str(tmp_path / dest), str(res)], check=True, capture_output=True)
+    archived = tmp_path / "a1" / "r"
+    assert sorted(p.name for p in archived.iterdir()) == ["bench.json", "results.jsonl.gz"]
+    assert (archived / "results.jsonl.gz").read_bytes() == (tmp_path / "a2" / "r" / "results.jsonl.gz").read_bytes()
+    build_report([res], out=tmp_path / "orig", formats="csv,md")
+    rep = build_report([archived], out=tmp_path / "arch", formats="csv,md")
+    assert rep["episodes"] == 12
+    orig, arch = table_bytes(tmp_path / "orig"), table_bytes(tmp_path / "arch")
+    assert orig.keys() == arch.keys() and all(orig[k] == arch[k] for k in orig if k.startswith("tables"))
+    (archived / "results.jsonl.gz").write_bytes(b"not gzip")
+    with pytest.raises(BrlInputError, match="not readable"):
+        build_report([archived], out=tmp_path / "bad", formats="csv")
+
+
 def tb_has_booktabs(path: Path) -> bool:
     text = path.read_text()
     return all(rule in text for rule in ("\\toprule", "\\midrule", "\\bottomrule")) and "\\%" in text

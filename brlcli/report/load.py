@@ -7,6 +7,7 @@ object per finished episode); see `brlcli.bench.runner`. Every problem is a one-
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import json
 import math
@@ -36,6 +37,9 @@ SUITE_KEYS["validation_starts"] = SUITE_KEYS["paper"]  # and from several start 
 
 CONFLICT_KEYS: tuple[str, ...] = ("seed", "success", "steps", "collided")
 """Two records of one episode that differ in any of these come from different runs and are refused."""
+
+ARCHIVED_RESULTS = "results.jsonl.gz"
+"""A results directory archived without its frames (`scripts/archive_bench.py`) holds its results.jsonl gzipped."""
 
 ROOT_KEY = "_results_dir"
 """Key added to each loaded episode: the results directory its `frames_file` is relative to."""
@@ -96,11 +100,14 @@ def _read_bench(path: Path) -> dict[str, Any]:
 def _read_episodes(path: Path, suite: str) -> tuple[list[dict[str, Any]], bool]:
     """Episode records of results.jsonl; a torn (unparsable) last line is dropped, any other bad line refused."""
     file = path / "results.jsonl"
+    if not file.is_file() and (path / ARCHIVED_RESULTS).is_file():
+        file = path / ARCHIVED_RESULTS
     if not file.is_file():
         raise BrlInputError(f"{path} holds no results.jsonl (no finished episodes)")
     try:
-        text = file.read_bytes().decode("utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
+        data = file.read_bytes()
+        text = (gzip.decompress(data) if file.name == ARCHIVED_RESULTS else data).decode("utf-8")
+    except (OSError, EOFError, UnicodeDecodeError) as exc:
         raise BrlInputError(f"{file} is not readable UTF-8 text ({_one_line(exc)})") from None
     lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
     rows: list[dict[str, Any]] = []

@@ -1,0 +1,50 @@
+"""Archive `brl bench` results directories without their frames, for the reports built from them (docs/results/).
+
+    python scripts/archive_bench.py DEST SRC [SRC ...]
+
+Each SRC (a finished `brl bench` output) becomes DEST/<SRC's name>/ with its bench.json and its results.jsonl
+gzipped (results.jsonl.gz, no timestamp: the same results give the same bytes). `brl report` reads such a directory
+like the original; the per-frame files stay behind (a report's frame-based figures then say they are missing).
+Written atomically; an existing archive of the same name is replaced.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import shutil
+import tempfile
+from pathlib import Path
+
+
+def archive(src: Path, dest_root: Path) -> Path:
+    """Copy bench.json and a gzipped results.jsonl of `src` to dest_root/<src.name>; the archive's path."""
+    for name in ("bench.json", "results.jsonl"):
+        if not (src / name).is_file():
+            raise SystemExit(f"{src} is not a brl bench results directory (no {name})")
+    dest_root.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{src.name}.", dir=dest_root))
+    tmp.chmod(0o755)
+    shutil.copyfile(src / "bench.json", tmp / "bench.json")
+    with open(tmp / "results.jsonl.gz", "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0,
+                                                                     filename="") as gz:
+        gz.write((src / "results.jsonl").read_bytes())
+    dest = dest_root / src.name
+    if dest.exists():
+        shutil.rmtree(dest)
+    tmp.rename(dest)
+    return dest
+
+
+def main() -> None:
+    """Archive each SRC under DEST."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("dest", type=Path)
+    ap.add_argument("src", type=Path, nargs="+")
+    args = ap.parse_args()
+    for src in args.src:
+        print(archive(src, args.dest))
+
+
+if __name__ == "__main__":
+    main()
