@@ -65,17 +65,11 @@ def state_vector(labels: np.ndarray) -> np.ndarray:
 
 NEARNESS_RANGE_M = 30.0
 """Depth (m) beyond which a road user adds nothing to the nearness state (outside the paper)."""
-STATE_OPTIONS = {"paper": 0, "nearness": 3, "nearness_scaled": 3, "speed": 1}
+STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1}
 """Agent state options (issue 35): the paper's 30 numbers; or those and 3 nearness numbers from the camera's depth
-image (`depth_nearness`), the same at the scale of the 30 shares (x NEARNESS_SCALED_MAX), or and the measured forward
-speed (clip(v / SPEED_SCALE_KMH, 0, 1), so that standing still and driving are different states); all outside the
-paper. Value: how many numbers the option adds."""
+image (`depth_nearness`), or and the measured forward speed (clip(v / SPEED_SCALE_KMH, 0, 1), so that standing still
+and driving are different states); both outside the paper. Value: how many numbers the option adds."""
 SPEED_SCALE_KMH = 30.0
-NEARNESS_SCALED_MAX = 0.2
-"""`nearness_scaled`: the nearness numbers times this, the range of the 30 shares, so that the mixture's creation
-distance (0.03, l_inf) cuts them in 4.5 m slices instead of 1 m ones (docs/navigation.md)."""
-DEPTH_STATE_OPTIONS = ("nearness", "nearness_scaled")
-"""The state options that read the camera's depth image."""
 
 
 def depth_nearness(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
@@ -99,8 +93,7 @@ def agent_state(labels: np.ndarray, depth: np.ndarray | None, option: str = "pap
         return np.append(state, min(max(speed_kmh / SPEED_SCALE_KMH, 0.0), 1.0))
     if depth is None:
         raise ValueError("the nearness state needs the camera's depth image")
-    scale = NEARNESS_SCALED_MAX if option == "nearness_scaled" else 1.0
-    return np.concatenate([state, scale * depth_nearness(labels, depth)])
+    return np.concatenate([state, depth_nearness(labels, depth)])
 
 
 ROAD_VIEW_CATEGORIES = {"road": (0,), "road+line": (0, 1)}

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from brlcli.errors import BrlInputError
-from brlcli.features import DEPTH_STATE_OPTIONS, STATE_DIM, STATE_OPTIONS, agent_state
+from brlcli.features import STATE_DIM, STATE_OPTIONS, agent_state
 from brlcli.retired import RETIRED_CONFIG, retired_message
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.settings import setting_name
@@ -147,7 +147,7 @@ class StatePolicy:
         self.camera = None if camera == CameraConfig() else camera  # None: the bench's default camera
         self.actions = ACTION_SETS[actions]
         self.state_option = state
-        self.needs_depth = state in DEPTH_STATE_OPTIONS
+        self.needs_depth = state == "nearness"
 
     @property
     def needs_rgb(self) -> bool:

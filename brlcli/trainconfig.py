@@ -139,7 +139,7 @@ class TrainConfig:
     hazard_slow_m: float = 15.0
     hazard_predict_s: float = 0.0  # how far ahead the hazard reward predicts road users (s; the expert's: 2)
     r_stand: float = 0.0  # outside the paper: cost per decision of standing still (< 1 km/h) with no hazard ahead
-    state: str = "paper"  # the agent's state: a key of features.STATE_OPTIONS ("paper": 30 numbers)
+    state: str = "paper"  # the agent's state (STATE_OPTIONS): "paper" (30 numbers), "nearness" or "speed" (outside it)
     brake_gate_steps: int = 0  # outside the paper, > 0: after the navigation model (the driver) is trained on empty
     # roads, a brake gate (`brlcli.agent.gate`: go or stop) learns this many steps in `traffic` with the hazard reward
     ghost_traffic: bool = False  # outside the paper: with `traffic`, the car passes through road users (seen, moving,

@@ -70,18 +70,3 @@ def test_road_view_penalty_below_half_road() -> None:
     state[2::5] = 0.7 / 6
     t = reward_terms(False, 0, 0, 25.0, state)
     assert t["road_view"] == pytest.approx(20 * (0.3 - 1))
-
-
-def test_the_scaled_nearness_is_the_nearness_at_the_shares_scale() -> None:
-    from brlcli.features import NEARNESS_SCALED_MAX, agent_state
-
-    labels = np.full((88, 200), CarlaClass.ROADS, np.uint8)
-    labels[40:60, 90:110] = CarlaClass.VEHICLES  # a car in the middle column, 9 m away
-    depth = np.full((88, 200), 9.0, np.float32)
-    near = agent_state(labels, depth, "nearness")
-    scaled = agent_state(labels, depth, "nearness_scaled")
-    assert near.shape == scaled.shape == (STATE_DIM + 3,)
-    np.testing.assert_array_equal(scaled[:STATE_DIM], near[:STATE_DIM])
-    np.testing.assert_allclose(near[STATE_DIM:], [0.0, 1.0 - 9.0 / 30.0, 0.0])
-    np.testing.assert_allclose(scaled[STATE_DIM:], NEARNESS_SCALED_MAX * near[STATE_DIM:])
-    assert scaled[STATE_DIM:].max() <= NEARNESS_SCALED_MAX
