@@ -1,6 +1,7 @@
 """Archive `brl bench` results directories without their frames, for the reports built from them (docs/results/).
 
     python scripts/archive_bench.py DEST SRC [SRC ...]
+    python scripts/archive_bench.py --restore OUT ARCHIVE    # back to a directory `brl bench --resume` continues
 
 Each SRC (a finished `brl bench` output) becomes DEST/<SRC's name>/ with its bench.json and its results.jsonl
 gzipped (results.jsonl.gz, no timestamp: the same results give the same bytes). `brl report` reads such a directory
@@ -36,12 +37,34 @@ def archive(src: Path, dest_root: Path) -> Path:
     return dest
 
 
+def restore(archived: Path, out: Path) -> Path:
+    """An archive back to a results directory (bench.json, results.jsonl) at `out`, which must not exist: `brl bench
+    --resume --out OUT` with the same options then runs the episodes it lacks."""
+    if not (archived / "results.jsonl.gz").is_file() or not (archived / "bench.json").is_file():
+        raise SystemExit(f"{archived} is not an archived results directory (bench.json, results.jsonl.gz)")
+    if out.exists():
+        raise SystemExit(f"{out} exists; restore into a new directory")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    tmp.chmod(0o755)
+    shutil.copyfile(archived / "bench.json", tmp / "bench.json")
+    (tmp / "results.jsonl").write_bytes(gzip.decompress((archived / "results.jsonl.gz").read_bytes()))
+    tmp.rename(out)
+    return out
+
+
 def main() -> None:
-    """Archive each SRC under DEST."""
+    """Archive each SRC under DEST, or restore one archive."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("dest", type=Path)
-    ap.add_argument("src", type=Path, nargs="+")
+    ap.add_argument("--restore", action="store_true", help="restore ARCHIVE (the second argument) into OUT")
+    ap.add_argument("dest", type=Path, help="where archives go (with --restore: the directory to create)")
+    ap.add_argument("src", type=Path, nargs="+", help="bench results directories (with --restore: one archive)")
     args = ap.parse_args()
+    if args.restore:
+        if len(args.src) != 1:
+            raise SystemExit("--restore takes one archive")
+        print(restore(args.src[0], args.dest))
+        return
     for src in args.src:
         print(archive(src, args.dest))
 
