@@ -14,7 +14,7 @@ Studies:
   validation, the baselines (autopilot, MP on GT and estimated labels), a NoCrash subset, the report.
 - `segnet`: the shipped segmentation net's recipe (models/README.md): six recordings, then `brl train-seg`.
 - `navigation`: the navigation report (docs/navigation-report): the navigation preset's models (what models/brl_nav
-  ships), the navigation DQN, CoRL2017 and NoCrash subsets for them and for the autopilot, MP and IL, the report.
+  ships), the navigation DQN, CoRL2017 and NoCrash for them and for the autopilot, MP and IL, the report.
 """
 
 from __future__ import annotations
@@ -130,7 +130,8 @@ def _paper_plan(opts: StudyOptions) -> list[Step]:
 
 
 def _navigation_plan(opts: StudyOptions) -> list[Step]:
-    """The navigation report's plan (docs/navigation-report): the preset's models, the DQN, CoRL2017 and NoCrash."""
+    """The navigation report's plan (docs/navigation-report): the preset's models, the DQN, CoRL2017 (the fixed 20 %
+    subset) and NoCrash (the full suite for the BRL models, the 20 % subset for the others; issue 35)."""
     q = opts.quick
     seeds = opts.seeds_text
     train_extra = ["--set", "imitation_iterations=1", "--set", "imitation_episodes=3", "--no-evaluate"] if q else []
@@ -146,13 +147,13 @@ def _navigation_plan(opts: StudyOptions) -> list[Step]:
     for suite, n in (("corl2017", corl_n), ("nocrash", nocrash_n)):
         policies = [("brl", ("--models", "train/nav"), ("train_brl",)),
                     ("dqn", ("--agent", "dqn", "--model", "train/dqn_nav"), ("train_dqn",)),
-                    ("il", ("--agent", "il"), ()), ("mp", ("--agent", "mp"), ())]
-        if suite == "nocrash":
-            policies.append(("autopilot", ("--agent", "autopilot"), ()))
+                    ("il", ("--agent", "il"), ()), ("mp", ("--agent", "mp"), ()),
+                    ("autopilot", ("--agent", "autopilot"), ())]
         for name, args, needs in policies:
             out = f"bench/{suite}_{name}"
-            steps.append(Step(f"{suite}_{name}", ("bench", "--suite", suite, *args, *n, *_run_opts(opts), "--out", out),
-                              out, needs=needs))
+            episodes = [] if suite == "nocrash" and name == "brl" and not q else n  # the BRL models: the full suite
+            steps.append(Step(f"{suite}_{name}", ("bench", "--suite", suite, *args, *episodes, *_run_opts(opts),
+                                                  "--out", out), out, needs=needs))
             bench_dirs.append(out)
     steps.append(_report_step(steps, bench_dirs, []))  # imitation runs have no TD learning curves (iterations.csv)
     return steps

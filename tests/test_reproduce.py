@@ -86,6 +86,16 @@ def test_a_killed_study_resumes_without_redoing_finished_steps(tmp_path: Path, c
     assert code == 2 and "holds another plan: seeds '0-1' (asked '0-8'), quick True (asked False)" in err
 
 
+def test_the_navigation_plan_benches_the_brl_models_on_the_full_nocrash_suite() -> None:
+    steps = {s.name: s.argv for s in build_plan("navigation", StudyOptions())}
+    assert "--episodes" not in steps["nocrash_brl"]
+    for name in ("nocrash_il", "nocrash_mp", "nocrash_autopilot", "nocrash_dqn", "corl2017_brl", "corl2017_il",
+                 "corl2017_autopilot"):
+        assert steps[name][steps[name].index("--episodes") + 1] == "0.2", name
+    quick = {s.name: s.argv for s in build_plan("navigation", StudyOptions(quick=True))}
+    assert quick["nocrash_brl"][quick["nocrash_brl"].index("--episodes") + 1] == "3"
+
+
 def test_only_and_from_pick_steps_in_plan_order() -> None:
     plan = build_plan("paper", StudyOptions())
     assert [s.name for s in select_steps(plan, only="corl_paper")] == ["corl_paper"]
