@@ -52,9 +52,10 @@ def category_counts(labels: np.ndarray) -> np.ndarray:
     return counts.reshape(*labels.shape[:-2], N_REGIONS, N_CATEGORIES)
 
 
-def states_from_counts(counts: np.ndarray) -> np.ndarray:
-    """Region x category pixel counts (..., 6, 5) -> states (..., 30): road lines weighted, L1-normalised."""
-    weighted = (np.asarray(counts, np.float64) * CATEGORY_WEIGHTS).reshape(*np.shape(counts)[:-2], STATE_DIM)
+def states_from_counts(counts: np.ndarray, weights: np.ndarray = CATEGORY_WEIGHTS) -> np.ndarray:
+    """Region x category pixel counts (..., 6, 5) -> states (..., 30): categories weighted (the paper: road lines x 20),
+    L1-normalised."""
+    weighted = (np.asarray(counts, np.float64) * weights).reshape(*np.shape(counts)[:-2], STATE_DIM)
     return weighted / weighted.sum(-1, keepdims=True)
 
 
@@ -65,11 +66,17 @@ def state_vector(labels: np.ndarray) -> np.ndarray:
 
 NEARNESS_RANGE_M = 30.0
 """Depth (m) beyond which a road user adds nothing to the nearness state (outside the paper)."""
-STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1}
+STATE_OPTIONS = {"paper": 0, "nearness": 3, "speed": 1, "road_users_weighted": 0}
 """Agent state options (issue 35): the paper's 30 numbers; or those and 3 nearness numbers from the camera's depth
 image (`depth_nearness`), or and the measured forward speed (clip(v / SPEED_SCALE_KMH, 0, 1), so that standing still
-and driving are different states); both outside the paper. Value: how many numbers the option adds."""
+and driving are different states), or the 30 numbers with road-user pixels weighted ROAD_USER_WEIGHT times (as the
+paper weights road lines); all but the first outside the paper. Value: how many numbers the option adds."""
 SPEED_SCALE_KMH = 30.0
+ROAD_USER_WEIGHT = 5.0
+"""`road_users_weighted`: the weight of vehicle and pedestrian pixels before the state is normalised. A pedestrian on
+the car's path 5-7 m ahead is a share of 0.006-0.02 in the paper's state, under the mixture's creation distance
+(0.03); five times that is above it (docs/navigation-study.md, 12.22)."""
+ROAD_USER_WEIGHTS = CATEGORY_WEIGHTS * np.where(np.arange(N_CATEGORIES) == DYNAMIC_CATEGORY, ROAD_USER_WEIGHT, 1.0)
 
 
 def depth_nearness(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
@@ -86,6 +93,8 @@ def depth_nearness(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
 def agent_state(labels: np.ndarray, depth: np.ndarray | None, option: str = "paper",
                 speed_kmh: float = 0.0) -> np.ndarray:
     """The agent's state under a state option (STATE_OPTIONS): the 30-vector, with the option's numbers appended."""
+    if option == "road_users_weighted":
+        return states_from_counts(category_counts(labels), ROAD_USER_WEIGHTS)
     state = state_vector(labels)
     if option == "paper":
         return state

@@ -70,3 +70,16 @@ def test_road_view_penalty_below_half_road() -> None:
     state[2::5] = 0.7 / 6
     t = reward_terms(False, 0, 0, 25.0, state)
     assert t["road_view"] == pytest.approx(20 * (0.3 - 1))
+
+
+def test_road_users_weighted_multiplies_road_user_pixels_before_normalising() -> None:
+    from brlcli.features import ROAD_USER_WEIGHT, agent_state
+
+    labels = np.full((88, 200), CarlaClass.ROADS, np.uint8)
+    labels[10:20, 95:105] = CarlaClass.PEDESTRIANS  # 100 pixels in the top-middle region
+    paper, weighted = agent_state(labels, None, "paper"), agent_state(labels, None, "road_users_weighted")
+    assert weighted.shape == (STATE_DIM,) and weighted.sum() == pytest.approx(1.0)
+    n = labels.size
+    assert paper[1 * 5 + 3] == pytest.approx(100 / n)
+    assert weighted[1 * 5 + 3] == pytest.approx(ROAD_USER_WEIGHT * 100 / (n - 100 + ROAD_USER_WEIGHT * 100))
+    np.testing.assert_allclose(weighted[0::5] / paper[0::5], (n / (n - 100 + ROAD_USER_WEIGHT * 100)))
