@@ -1,4 +1,4 @@
-"""Archive `brl bench` results directories without their frames, for the reports built from them (docs/results/).
+"""Archive `brl bench` results without their frames, for reports built from them (docs/navigation-report/bench/).
 
     python scripts/archive_bench.py DEST SRC [SRC ...]
     python scripts/archive_bench.py --restore OUT ARCHIVE    # back to a directory `brl bench --resume` continues
