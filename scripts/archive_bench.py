@@ -18,14 +18,20 @@ import tempfile
 from pathlib import Path
 
 
+def _staging_dir(parent: Path, name: str) -> Path:
+    """A fresh, readable temporary directory in `parent`, renamed into place once complete."""
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=parent))
+    tmp.chmod(0o755)
+    return tmp
+
+
 def archive(src: Path, dest_root: Path) -> Path:
     """Copy bench.json and a gzipped results.jsonl of `src` to dest_root/<src.name>; the archive's path."""
     for name in ("bench.json", "results.jsonl"):
         if not (src / name).is_file():
             raise SystemExit(f"{src} is not a brl bench results directory (no {name})")
-    dest_root.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{src.name}.", dir=dest_root))
-    tmp.chmod(0o755)
+    tmp = _staging_dir(dest_root, src.name)
     shutil.copyfile(src / "bench.json", tmp / "bench.json")
     with open(tmp / "results.jsonl.gz", "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0,
                                                                      filename="") as gz:
@@ -44,9 +50,7 @@ def restore(archived: Path, out: Path) -> Path:
         raise SystemExit(f"{archived} is not an archived results directory (bench.json, results.jsonl.gz)")
     if out.exists():
         raise SystemExit(f"{out} exists; restore into a new directory")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    tmp.chmod(0o755)
+    tmp = _staging_dir(out.parent, out.name)
     shutil.copyfile(archived / "bench.json", tmp / "bench.json")
     (tmp / "results.jsonl").write_bytes(gzip.decompress((archived / "results.jsonl.gz").read_bytes()))
     tmp.rename(out)
