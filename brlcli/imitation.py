@@ -23,7 +23,8 @@ Layout (the run directory of `brlcli.train`, with iterations in place of learnin
     model.npz, summary.json as every run
 An interrupted run resumes at the first iteration without both files: it loses at most the iteration in flight.
 Every random choice is seeded: episode e of iteration i from (seed, i, e[, member]), the fit's order from
-(seed, i[, member]); greedy acting draws nothing. Iterations run one after the other in one process.
+(seed, i[, member]); greedy acting draws nothing. Iterations run one after the other; with several drive workers
+an iteration's episodes are driven in blocks on local processes and joined in episode order (the same records).
 """
 
 from __future__ import annotations
@@ -33,12 +34,16 @@ import io
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from brlcli.agent.command import CommandAgent
+from brlcli.executor import report as report_to_driver
+from brlcli.executor import run_tasks
 from brlcli.npzio import save_npz
 from brlcli.policy import with_stop_rule
 from brlcli.provenance import atomic_write_bytes, provenance
@@ -91,16 +96,19 @@ def _seed_tail(cfg: TrainConfig) -> list[int]:
 
 
 def record_iteration(env: DrivingEnv, cfg: TrainConfig, iteration: int, driver: Any,
-                     on_episode: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
-    """Drive one iteration's episodes (the expert in iteration 0, else `driver` greedily, under the run's
-    `stop_rule`) and record, at every decision, the state, the command, the expert's action and the action taken."""
+                     on_episode: Callable[[int], None] | None = None,
+                     episodes: range | None = None) -> dict[str, np.ndarray]:
+    """Drive one iteration's episodes (all, or `episodes` of them; the expert in iteration 0, else `driver`
+    greedily, under the run's `stop_rule`) and record, at every decision, the state, the command, the expert's action
+    and the action taken. `on_episode(k)` after the k-th episode driven here."""
     rows: dict[str, list[Any]] = {"states": [], "commands": [], "labels": [], "actions": [], "traffic": [],
                                   "episode": []}
     goals = crashes = 0
     if driver is not None:
         driver = with_stop_rule(driver, cfg.actions, cfg.stop_rule)
     t0 = time.perf_counter()
-    for e in range(cfg.imitation_episodes):
+    episodes = range(cfg.imitation_episodes) if episodes is None else episodes
+    for k, e in enumerate(episodes):
         seed = int(np.random.default_rng([cfg.seed, iteration, e, 43, *_seed_tail(cfg)]).integers(2**31))
         obs, info = env.reset(seed=seed)
         while True:
@@ -115,11 +123,57 @@ def record_iteration(env: DrivingEnv, cfg: TrainConfig, iteration: int, driver: 
                 crashes += int(bool(info.get("crashed", False)))
                 break
         if on_episode is not None:
-            on_episode(e + 1)
-    out = {k: np.asarray(v) for k, v in rows.items()}
+            on_episode(k + 1)
+    out = {key: np.asarray(v) for key, v in rows.items()}
     out["states"] = out["states"].reshape(len(rows["labels"]), -1)
     out["traffic"] = out["traffic"].astype(str)
     out.update(goals=np.array(goals), crashes=np.array(crashes), wall_s=np.array(time.perf_counter() - t0))
+    return out
+
+
+DRIVE_CHUNKS_PER_WORKER = 4
+"""With several drive workers, an iteration's episodes go out in this many blocks per worker (progress, balance)."""
+
+
+def _drive_block(env: DrivingEnv, item: tuple[TrainConfig, int, str | None, int, int]) -> dict[str, np.ndarray]:
+    """One block of an iteration's episodes in a worker process: the driver read from its model file."""
+    cfg, iteration, driver_path, first, stop = item
+    driver = CommandAgent.load(driver_path) if driver_path is not None else None
+    return record_iteration(env, cfg, iteration, driver, lambda _k: report_to_driver(1),
+                            episodes=range(first, stop))
+
+
+def drive_iteration(cfg: TrainConfig, iteration: int, driver: Any, driver_path: Path | None,
+                    make_env: Callable[[TrainConfig], DrivingEnv], env: Callable[[], DrivingEnv], workers: int,
+                    on_episode: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
+    """`record_iteration` over all the iteration's episodes, in this process (`env()`) with one worker, else in
+    blocks of episodes on `workers` local processes, each with its own environment (`make_env(cfg)`, a module-level
+    function) and the driver read from `driver_path`. Episode e's seed is the same either way and the blocks are
+    joined in episode order, so the records do not depend on `workers`."""
+    n = cfg.imitation_episodes
+    if workers <= 1 or n < 2:
+        return record_iteration(env(), cfg, iteration, driver, on_episode)
+    bounds = np.linspace(0, n, min(n, workers * DRIVE_CHUNKS_PER_WORKER) + 1).round().astype(int)
+    items = [(cfg, iteration, None if driver_path is None else str(driver_path), int(a), int(b))
+             for a, b in pairwise(bounds)]
+    done = 0
+
+    def count(_message: Any) -> None:
+        nonlocal done
+        done += 1
+        if on_episode is not None:
+            on_episode(done)
+
+    t0 = time.perf_counter()
+    parts: list[dict[str, np.ndarray]] = [{} for _ in items]
+    for i, part in run_tasks(_drive_block, items, executor="local", workers=workers,
+                             setup=partial(make_env, cfg), on_report=count):
+        parts[i] = part
+    out = {key: np.concatenate([p[key] for p in parts]) for key in ("states", "commands", "labels", "actions",
+                                                                      "traffic", "episode")}
+    out.update(goals=np.array(sum(int(p["goals"]) for p in parts)),
+               crashes=np.array(sum(int(p["crashes"]) for p in parts)),
+               wall_s=np.array(time.perf_counter() - t0))
     return out
 
 
@@ -146,9 +200,12 @@ def _write_log(path: Path, rows: list[dict[str, Any]]) -> None:
 
 
 def train_imitation(cfg: TrainConfig, run_dir: Path, make_env: Callable[[TrainConfig], DrivingEnv],
-                    progress: Callable[[int, int, float, int], None] | None = None) -> dict[str, Any]:
+                    progress: Callable[[int, int, float, int], None] | None = None,
+                    drive_workers: int = 1) -> dict[str, Any]:
     """Train (or resume) one imitation run in run_dir (config.json already written); returns the summary record
-    without its evaluation. `progress(episodes_done, episodes_total, agreement, components)` after each episode."""
+    without its evaluation. `progress(episodes_done, episodes_total, agreement, components)` after each episode.
+    With `drive_workers` > 1 each iteration's drives run on that many local processes (`drive_iteration`; the same
+    records); the fit stays in this process."""
     it_dir = run_dir / "iterations"
     it_dir.mkdir(exist_ok=True)
     total = (cfg.imitation_iterations + 1) * cfg.imitation_episodes
@@ -164,7 +221,6 @@ def train_imitation(cfg: TrainConfig, run_dir: Path, make_env: Callable[[TrainCo
                 agent = CommandAgent.load(model_path)
                 fit_s = float(data[-1]["fit_s"])
             else:
-                env = env or make_env(cfg)
                 agreement = float(rows[-1]["agreement"] or 0.0) if rows else 0.0
                 components = agent.total_components if agent is not None else 0
                 done = it * cfg.imitation_episodes
@@ -173,7 +229,13 @@ def train_imitation(cfg: TrainConfig, run_dir: Path, make_env: Callable[[TrainCo
                     if progress is not None:
                         progress(done + e, total, agree, comps)
 
-                part = record_iteration(env, cfg, it, agent, report)
+                def local_env() -> DrivingEnv:
+                    nonlocal env
+                    env = env or make_env(cfg)
+                    return env
+
+                part = drive_iteration(cfg, it, agent, it_dir / f"model_{it - 1}.npz" if it else None, make_env,
+                                       local_env, drive_workers, report)
                 data.append(part)
                 t_fit = time.perf_counter()
                 agent = fit_mixture(*(np.concatenate([d[k] for d in data]) for k in ("states", "commands", "labels")),

@@ -284,8 +284,9 @@ def run_episode(env: DrivingEnv, run: Run, hooks: Sequence[Hook]) -> tuple[list[
 
 
 def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
-              progress: Callable[[Progress], None] | None = None) -> dict[str, Any]:
-    """Train one agent; returns the summary record. Resumable from the last finished episode."""
+              progress: Callable[[Progress], None] | None = None, drive_workers: int = 1) -> dict[str, Any]:
+    """Train one agent; returns the summary record. Resumable from the last finished episode. An imitation run
+    drives each iteration on `drive_workers` local processes (the same model whatever their number)."""
     run_dir = Path(run_dir)
     check_run_dir(cfg, run_dir, resume)
     _check_driver(cfg)
@@ -299,7 +300,7 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     if cfg.committee > 1:
         return _train_committee(cfg, run_dir, resume, progress)
     if cfg.learning == "imitation":
-        return _train_imitation(cfg, run_dir, progress)
+        return _train_imitation(cfg, run_dir, progress, drive_workers)
     env = make_env(cfg)
     checkpoint = Checkpoint(run_dir)
     run = checkpoint.load(cfg) if resume else None
@@ -334,7 +335,8 @@ def train_run(cfg: TrainConfig, run_dir: Path, resume: bool = False,
     return record
 
 
-def _train_imitation(cfg: TrainConfig, run_dir: Path, progress: Callable[[Progress], None] | None) -> dict[str, Any]:
+def _train_imitation(cfg: TrainConfig, run_dir: Path, progress: Callable[[Progress], None] | None,
+                     drive_workers: int = 1) -> dict[str, Any]:
     """Train (or resume) a navigation model by imitation (`brlcli.imitation`), evaluate it, write summary.json."""
     from brlcli.imitation import train_imitation
 
@@ -342,7 +344,7 @@ def _train_imitation(cfg: TrainConfig, run_dir: Path, progress: Callable[[Progre
         if progress is not None:  # the bar's reward column shows the driver's agreement with the expert
             progress(Progress(cfg.seed, done, total, done, agreement, 0.0, components, finished, cfg.member))
 
-    record = train_imitation(cfg, run_dir, make_env, report)
+    record = train_imitation(cfg, run_dir, make_env, report, drive_workers)
     summary = record["summary"]
     if cfg.evaluate:
         summary["eval"] = evaluate_greedy(CommandAgent.load(run_dir / "model.npz"), cfg)
@@ -796,16 +798,19 @@ def run_dir_for(out: Path, seed: int) -> Path:
     return Path(out) / f"seed_{seed}"
 
 
-def _train_task(item: tuple[TrainConfig, str, bool]) -> dict[str, Any]:
+def _train_task(item: tuple[TrainConfig, str, bool, int]) -> dict[str, Any]:
     """One run in a worker (local process or Ray task); progress goes to the driver through the executor."""
-    cfg, run_dir, resume = item
-    return train_run(cfg, Path(run_dir), resume=resume, progress=report)
+    cfg, run_dir, resume, drive_workers = item
+    return train_run(cfg, Path(run_dir), resume=resume, progress=report, drive_workers=drive_workers)
 
 
 def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, resume: bool = False,
                progress: Callable[[Progress], None] | None = None, executor: str | Executor = "local",
                ray_address: str | None = None) -> list[dict[str, Any]]:
     """Train one model per seed, one task each on the executor; results (in seed order) do not depend on it.
+
+    A single imitation run on the local executor (one seed, no committee) runs in this process and drives its
+    iterations on all `workers` instead (`brlcli.imitation.drive_iteration`; the same model).
 
     Every seed's run directory and the inputs are checked before anything is written. Workers write each seed's run
     directory themselves (checkpoints while they train), so on a Ray cluster `out` must be on a filesystem every node
@@ -825,11 +830,12 @@ def train_many(cfg: TrainConfig, seeds: list[int], out: Path, workers: int = 1, 
                                                       kind="train"))
         if cfg.committee > 1:  # the members first, every (seed, member) one task, then each seed's committee
             members = [(_members_config(c).member_config(k), str(_members_dir(c, run_dir_for(out, c.seed)).resolve()
-                                                                  / f"member_{k}"), resume)
+                                                                  / f"member_{k}"), resume, 1)
                        for c in cfgs for k in range(cfg.committee)]
             for _ in run_tasks(_train_task, members, executor=ex, on_report=progress):
                 pass
-        items = [(c, str(run_dir_for(out, c.seed).resolve()), resume) for c in cfgs]
+        drive_workers = ex.workers if ex.kind == "local" and len(cfgs) == 1 else 1  # a lone run gets every worker
+        items = [(c, str(run_dir_for(out, c.seed).resolve()), resume, drive_workers) for c in cfgs]
         results: list[dict[str, Any]] = [{} for _ in items]
         for i, result in run_tasks(_train_task, items, executor=ex, on_report=progress):
             results[i] = result

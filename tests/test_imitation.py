@@ -70,6 +70,20 @@ def test_an_imitation_run_writes_its_iterations_and_resumes_bit_identical(tmp_pa
     assert (tmp_path / "c" / "model.npz").read_bytes() != (run / "model.npz").read_bytes()
 
 
+def test_a_lone_imitation_run_drives_on_every_worker_with_the_same_records(tmp_path: Path) -> None:
+    cfg = TrainConfig(**{**TINY, "imitation_episodes": 3, "traffic": ["regular", "dense"]})
+    train_run(cfg, tmp_path / "one")
+    train_many(cfg, [0], tmp_path / "two", workers=2)  # one seed: its drives go to two processes
+    two = tmp_path / "two" / "seed_0"
+    assert (two / "model.npz").read_bytes() == (tmp_path / "one" / "model.npz").read_bytes()
+    for it in (0, 1):
+        name = f"iterations/data_{it}.npz"
+        with np.load(tmp_path / "one" / name) as x, np.load(two / name) as y:
+            assert all(np.array_equal(x[k], y[k]) for k in ("states", "commands", "labels", "actions", "traffic",
+                                                             "episode", "goals", "crashes"))
+    assert _without_seconds(two / "iterations.csv") == _without_seconds(tmp_path / "one" / "iterations.csv")
+
+
 def test_a_brake_gate_learns_over_an_imitating_driver_in_traffic(tmp_path: Path) -> None:
     from brlcli.agent.gate import BrakeGatedAgent
 
