@@ -131,14 +131,14 @@ def test_sweep_on_ray_equals_local(tmp_path: Path, ray_instance) -> None:
 
     grid = tmp_path / "grid.toml"
     grid.write_text("[base]\nsteps = 60\n[variants.a]\n[variants.b]\nparams = { gamma = 0.8 }\n")
-    plan = plan_sweep(grid, [0, 1], routes="validation", episodes="1")
+    plan = plan_sweep(grid, [0], routes="validation", episodes="1")  # 2 variants x 1 seed: 2 tasks
     run_sweep(plan, tmp_path / "local", workers=1)
     seen: list = []
     run_sweep(plan, tmp_path / "ray", executor=Executor("ray"), progress=seen.append)
     assert (tmp_path / "ray" / "sweep.csv").read_bytes() == (tmp_path / "local" / "sweep.csv").read_bytes()
     assert {m["kind"] for m in seen} >= {"step", "trained", "evaluated"}
     for v in ("a", "b"):
-        for s in (0, 1):
+        for s in (0,):
             name = f"{v}/seed_{s}/model.npz"
             assert (tmp_path / "ray" / name).read_bytes() == (tmp_path / "local" / name).read_bytes(), name
 
@@ -150,7 +150,7 @@ def test_bad_executor_options_fail_before_anything_runs() -> None:
 
 
 def _cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "brlcli", *args], capture_output=True, text=True, timeout=60,
+    return subprocess.run([sys.executable, "-m", "brlcli", *args], capture_output=True, text=True, timeout=120,
                           env={**os.environ, **(env or {})})
 
 
