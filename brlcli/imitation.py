@@ -143,16 +143,17 @@ def _drive_block(env: DrivingEnv, item: tuple[TrainConfig, int, str | None, int,
                             episodes=range(first, stop))
 
 
-def drive_iteration(cfg: TrainConfig, iteration: int, driver: Any, driver_path: Path | None,
-                    make_env: Callable[[TrainConfig], DrivingEnv], env: Callable[[], DrivingEnv], workers: int,
+def drive_iteration(cfg: TrainConfig, iteration: int, env: DrivingEnv | None, driver: Any, driver_path: Path | None,
+                    make_env: Callable[[TrainConfig], DrivingEnv], workers: int,
                     on_episode: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
-    """`record_iteration` over all the iteration's episodes, in this process (`env()`) with one worker, else in
-    blocks of episodes on `workers` local processes, each with its own environment (`make_env(cfg)`, a module-level
-    function) and the driver read from `driver_path`. Episode e's seed is the same either way and the blocks are
-    joined in episode order, so the records do not depend on `workers`."""
+    """`record_iteration` over all the iteration's episodes: with one worker in this process (`env`, `driver`),
+    else in blocks of episodes on `workers` local processes, each with its own environment (`make_env(cfg)`, a
+    module-level function) and the driver read from `driver_path`. Episode e's seed is the same either way and the
+    blocks are joined in episode order, so the records do not depend on `workers`."""
+    if workers <= 1:
+        assert env is not None
+        return record_iteration(env, cfg, iteration, driver, on_episode)
     n = cfg.imitation_episodes
-    if workers <= 1 or n < 2:
-        return record_iteration(env(), cfg, iteration, driver, on_episode)
     bounds = np.linspace(0, n, min(n, workers * DRIVE_CHUNKS_PER_WORKER) + 1).round().astype(int)
     items = [(cfg, iteration, None if driver_path is None else str(driver_path), int(a), int(b))
              for a, b in pairwise(bounds)]
@@ -229,13 +230,10 @@ def train_imitation(cfg: TrainConfig, run_dir: Path, make_env: Callable[[TrainCo
                     if progress is not None:
                         progress(done + e, total, agree, comps)
 
-                def local_env() -> DrivingEnv:
-                    nonlocal env
+                if drive_workers <= 1:
                     env = env or make_env(cfg)
-                    return env
-
-                part = drive_iteration(cfg, it, agent, it_dir / f"model_{it - 1}.npz" if it else None, make_env,
-                                       local_env, drive_workers, report)
+                part = drive_iteration(cfg, it, env, agent, it_dir / f"model_{it - 1}.npz" if it else None, make_env,
+                                       drive_workers, report)
                 data.append(part)
                 t_fit = time.perf_counter()
                 agent = fit_mixture(*(np.concatenate([d[k] for d in data]) for k in ("states", "commands", "labels")),
