@@ -146,12 +146,11 @@ def _drive_block(env: DrivingEnv, item: tuple[TrainConfig, int, str | None, int,
 def drive_iteration(cfg: TrainConfig, iteration: int, env: DrivingEnv | None, driver: Any, driver_path: Path | None,
                     make_env: Callable[[TrainConfig], DrivingEnv], workers: int,
                     on_episode: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
-    """`record_iteration` over all the iteration's episodes: with one worker in this process (`env`, `driver`),
-    else in blocks of episodes on `workers` local processes, each with its own environment (`make_env(cfg)`, a
-    module-level function) and the driver read from `driver_path`. Episode e's seed is the same either way and the
-    blocks are joined in episode order, so the records do not depend on `workers`."""
-    if workers <= 1:
-        assert env is not None
+    """`record_iteration` over all the iteration's episodes: in this process where the run's environment `env` is
+    given (with `driver`), else in blocks of episodes on `workers` local processes, each with its own environment
+    (`make_env(cfg)`, a module-level function) and the driver read from `driver_path`. Episode e's seed is the same
+    either way and the blocks are joined in episode order, so the records do not depend on where they were driven."""
+    if env is not None:
         return record_iteration(env, cfg, iteration, driver, on_episode)
     n = cfg.imitation_episodes
     bounds = np.linspace(0, n, min(n, workers * DRIVE_CHUNKS_PER_WORKER) + 1).round().astype(int)
