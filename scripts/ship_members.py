@@ -2,12 +2,15 @@
 shipped model directory.
 
     python scripts/ship_members.py runs/s30/committee7 models/brl_nav_empty
-    python scripts/ship_members.py runs/s43/rule9 models/brl_nav
+    python scripts/ship_members.py --deployment runs/s46/ship_s0 models/brl_nav
 
 For every `seed_<s>/member_<k>` (or `seed_<s>` without members) of the run that holds a `summary.json` (a finished
 run), writes `<dest>/seed_<s>/member_<k>/` (or `<dest>/seed_<s>/`) with its `config.json`, `summary.json`, an
 imitation run's `iterations.csv` and `model.npz`, the model re-saved zip-compressed (the same arrays, a third of the
-size; `np.load` reads both) and checked array for array. Runs already shipped are left as they are. For committees, a
+size; `np.load` reads both) and checked array for array. With `--deployment` the copy leaves out every mixture's
+scatter matrices (`brlcli.agent.bayes.deployment_arrays`: about half the file again): it drives exactly as the run's
+model (the same means, Cholesky factors, action values; loaded back through brl and checked) but cannot learn
+further. Runs already shipped are left as they are. For committees, a
 later `brl train ... --set committee=K --resume` on a copy of `<dest>` finishes the missing members and writes each
 seed's committee (`models/README.md`).
 """
@@ -23,12 +26,18 @@ from pathlib import Path
 
 import numpy as np
 
+from brlcli.agent.bayes import deployment_arrays
+from brlcli.agent.command import is_command_model, load_navigation_agent
+from brlcli.agent.committee import load_lane_keeping_agent
 
-def ship_member(src: Path, dst: Path) -> None:
+
+def ship_member(src: Path, dst: Path, deployment: bool = False) -> None:
     """Copy one finished member run (config, summary, compressed model) into dst, atomically per file."""
     dst.mkdir(parents=True, exist_ok=True)
     with np.load(src / "model.npz", allow_pickle=False) as npz:
         arrays = {k: npz[k] for k in npz.files}
+    if deployment:
+        arrays = deployment_arrays(arrays)
     fd, tmp = tempfile.mkstemp(dir=dst, suffix=".npz.tmp")
     os.close(fd)
     with open(tmp, "wb") as fh:
@@ -38,6 +47,7 @@ def ship_member(src: Path, dst: Path) -> None:
                 back[k].dtype != v.dtype or back[k].tobytes() != v.tobytes() for k, v in arrays.items()):
             os.unlink(tmp)
             raise SystemExit(f"{src}: the compressed copy differs from the model")
+    (load_navigation_agent if is_command_model(tmp) else load_lane_keeping_agent)(tmp)  # brl reads it back
     os.replace(tmp, dst / "model.npz")
     log = ["iterations.csv"] if (src / "iterations.csv").exists() else []  # an imitation run's DAgger iterations
     for name in (*log, "config.json", "summary.json"):  # summary last: it marks the run as finished
@@ -50,6 +60,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run", type=Path)
     ap.add_argument("dest", type=Path)
+    ap.add_argument("--deployment", action="store_true",
+                    help="ship deployment copies (no scatter matrices: about half the size; they cannot learn)")
     args = ap.parse_args()
     shipped = 0
     finished = [s for s in args.run.glob("seed_*/summary.json") if not any(s.parent.glob("member_*"))]
@@ -58,7 +70,7 @@ def main() -> None:
         dst = args.dest / src.relative_to(args.run)
         if (dst / "summary.json").exists():
             continue
-        ship_member(src, dst)
+        ship_member(src, dst, deployment=args.deployment)
         shipped += 1
     total = len(list(args.dest.glob("seed_*/member_*/summary.json")) + list(args.dest.glob("seed_*/summary.json")))
     print(f"shipped {shipped} runs; {args.dest} holds {total}", file=sys.stderr)

@@ -20,6 +20,7 @@ from brlcli.agent import (
     niw_update,
     student_t_logpdf,
 )
+from brlcli.agent.bayes import deployment_arrays, save_model_arrays
 from brlcli.errors import BrlInputError
 
 D = 30
@@ -613,6 +614,43 @@ def test_load_rejects_bad_files(tmp_path: os.PathLike) -> None:
         with pytest.raises(BrlInputError) as excinfo:
             BayesianAgent.load(path)
         assert "\n" not in str(excinfo.value) and path in str(excinfo.value)
+
+
+def test_a_deployment_copy_decides_as_the_model_and_refuses_to_learn(tmp_path: os.PathLike) -> None:
+    agent = trained_agent(n_steps=150, seed=4)
+    full, copy = os.path.join(tmp_path, "full.npz"), os.path.join(tmp_path, "deploy.npz")
+    agent.save(full)
+    save_model_arrays(copy, deployment_arrays(agent.to_arrays()))
+    assert os.path.getsize(copy) < 0.75 * os.path.getsize(full)
+    loaded = BayesianAgent.load(copy)
+    assert loaded.deployment and not agent.deployment
+    for name in ("Q", "visits", "means", "kappa", "nu", "chol"):
+        assert np.array_equal(getattr(agent, name), getattr(loaded, name)), name
+    rng = np.random.default_rng(21)
+    for _ in range(30):
+        s = rng.dirichlet(np.full(D, 0.3))
+        assert np.array_equal(agent.action_probabilities(s), loaded.action_probabilities(s))
+        assert agent.value(s) == loaded.value(s)
+        assert agent.act(s, np.random.default_rng(3)) == loaded.act(s, np.random.default_rng(3))
+    with pytest.raises(BrlInputError, match=r"deployment copy .* can drive but not learn"):
+        loaded.learn(s, 0, -1.0, s)
+    with pytest.raises(BrlInputError, match="no scatter matrices"):
+        _ = loaded.scatter
+    again = os.path.join(tmp_path, "again.npz")  # a deployment copy saves as one
+    loaded.save(again)
+    with np.load(copy, allow_pickle=False) as a, np.load(again, allow_pickle=False) as b:
+        assert sorted(a.files) == sorted(b.files) and "scatter" not in a.files and int(a["deployment"]) == 1
+        assert all(a[k].tobytes() == b[k].tobytes() for k in a.files)
+
+    no_scatter = os.path.join(tmp_path, "no_scatter.npz")  # scatter lost without the marker: refused
+    with np.load(full, allow_pickle=False) as npz:
+        np.savez(no_scatter, **{k: npz[k] for k in npz.files if k != "scatter"})
+    with pytest.raises(BrlInputError, match="lacks the entry 'scatter'"):
+        BayesianAgent.load(no_scatter)
+    both = os.path.join(tmp_path, "both.npz")  # a marker beside the scatter: refused
+    _rewrite(full, both, deployment=np.array(1))
+    with pytest.raises(BrlInputError, match="'deployment' must be 1 and come without 'scatter'"):
+        BayesianAgent.load(both)
 
 
 def test_determinism_two_agents_same_sequence() -> None:

@@ -105,15 +105,16 @@ def test_only_and_from_pick_steps_in_plan_order() -> None:
 
 
 def test_the_quick_paper_study_ends_with_every_table_and_resumes_for_free(tmp_path: Path, capsys) -> None:
-    root = tmp_path / "paper"
-    code, out, err = _main(["reproduce", "paper", "--quick", "--workers", "2", "--out", str(root)], capsys)
+    root = tmp_path / "paper"  # 60 learning steps instead of --quick's 300: the same steps and tables, 75 s less
+    argv = ["reproduce", "paper", "--quick", "--set", "steps=60", "--workers", "2", "--out", str(root)]
+    code, out, err = _main(argv, capsys)
     assert code == 0, err
     assert out.strip().splitlines()[-1] == str(root.resolve() / "report")
     tables = {p.name for p in (root / "report" / "tables").glob("*.csv")}
     assert {"paper_test_table.csv", "paper_posteriors.csv", "corl_success.csv", "nocrash_success.csv",
             "training_runs.csv"} <= tables
     assert len(list((root / "steps").glob("*.json"))) == len(build_plan("paper", StudyOptions(quick=True)))
-    code, _, err = _main(["reproduce", "paper", "--quick", "--workers", "2", "--out", str(root)], capsys)
+    code, _, err = _main(argv, capsys)
     assert code == 0 and "0 steps run, 24 already finished" in err
 
 

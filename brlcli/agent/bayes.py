@@ -50,6 +50,9 @@ from brlcli.retired import RETIRED_CONFIG, retired_message
 FORMAT_VERSION = 1
 """Version of the `.npz` model file written by `BayesianAgent.save`."""
 
+DEPLOYMENT_KEY = "deployment"
+"""Marks a deployment copy: a model file without its scatter matrices, which can drive but not learn."""
+
 _INITIAL_CAPACITY = 16
 """Preallocated component slots of a new agent; doubled on demand up to `max_components`."""
 
@@ -194,6 +197,7 @@ class BayesianAgent:
         self._rho = params.rho_init
         self._steps = 0
         self._n = 0
+        self._deployment = False
         self._allocate(min(_INITIAL_CAPACITY, params.max_components))
         self._add_component(np.full(self._dim, 1.0 / self._dim))
 
@@ -344,8 +348,15 @@ class BayesianAgent:
         return self._nu[:self._n].copy()
 
     @property
+    def deployment(self) -> bool:
+        """True for a deployment copy (loaded without its scatter matrices): it drives but cannot learn."""
+        return self._deployment
+
+    @property
     def scatter(self) -> np.ndarray:
-        """Copy of the scatter matrices S, shape (M, D, D)."""
+        """Copy of the scatter matrices S, shape (M, D, D); a deployment copy has none."""
+        if self._deployment:
+            raise BrlInputError("a deployment copy of a model has no scatter matrices (shipped without them)")
         return self._scatter[:self._n].copy()
 
     @property
@@ -408,6 +419,9 @@ class BayesianAgent:
         With `next_value` the TD target is r_t + gamma * next_value instead of this agent's own value of s_{t+1}
         (the command-conditioned agent, where the next decision belongs to another branch); `next_state` is then
         not read."""
+        if self._deployment:
+            raise BrlInputError("this model is a deployment copy without its scatter matrices (a shipped model): it "
+                                "can drive but not learn; train from the run's own model.npz instead")
         p = self._params
         checked_t = self._checked(state, "state")
         if next_value is not None:
@@ -480,6 +494,12 @@ class BayesianAgent:
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The model's arrays as `save` writes them (format version, parameters, components, schedules)."""
+        if self._deployment:
+            return deployment_arrays(self._full_arrays())
+        return self._full_arrays()
+
+    def _full_arrays(self) -> dict[str, np.ndarray]:
+        """Every array of the model, the scatter matrices included."""
         n = self._n
         return {
             "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
@@ -560,8 +580,12 @@ class BayesianAgent:
         n = means.shape[0]
         if not 1 <= n <= params.max_components:
             raise BrlInputError(f"model file {path} has {n} components, expected 1..{params.max_components}")
-        expected = {"means": (n, dim), "kappa": (n,), "nu": (n,), "scatter": (n, dim, dim), "chol": (n, dim, dim),
-                    "Q": (rows, n)}
+        deployment = DEPLOYMENT_KEY in npz.files
+        if deployment and (scalar(DEPLOYMENT_KEY, "iub") != 1 or "scatter" in npz.files):
+            raise BrlInputError(f"model file {path}: '{DEPLOYMENT_KEY}' must be 1 and come without 'scatter'")
+        expected = {"means": (n, dim), "kappa": (n,), "nu": (n,), "chol": (n, dim, dim), "Q": (rows, n)}
+        if not deployment:
+            expected["scatter"] = (n, dim, dim)
         arrays: dict[str, np.ndarray] = {}
         for key, shape in expected.items():
             arr = get(key)
@@ -593,7 +617,10 @@ class BayesianAgent:
         agent._mean[:n] = arrays["means"]
         agent._kappa[:n] = arrays["kappa"]
         agent._nu[:n] = arrays["nu"]
-        agent._scatter[:n] = arrays["scatter"]
+        if deployment:
+            agent._deployment = True
+        else:
+            agent._scatter[:n] = arrays["scatter"]
         agent._chol[:n] = arrays["chol"]
         agent._q[:, :n] = arrays["Q"]
         agent._visits[:, :n] = visits
@@ -603,6 +630,20 @@ class BayesianAgent:
         agent._alpha, agent._tau, agent._steps = schedule["alpha"], schedule["tau"], int(steps)
         agent._rho = schedule["rho"]
         return agent
+
+
+def deployment_arrays(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A model file's arrays as a deployment copy: every mixture's scatter matrices dropped, a marker in their place.
+
+    Driving reads the Cholesky factors only, so the copy decides exactly as the model (about half the file); it
+    cannot learn further. Works on a single mixture's arrays and on prefixed ones (`follow.scatter`, ...)."""
+    out: dict[str, np.ndarray] = {}
+    for key, value in arrays.items():
+        if key == "scatter" or key.endswith(".scatter"):
+            out[key[:-len("scatter")] + DEPLOYMENT_KEY] = np.array(1, dtype=np.int64)
+        else:
+            out[key] = value
+    return out
 
 
 def save_model_arrays(path: str | os.PathLike[str], arrays: dict[str, np.ndarray]) -> None:
