@@ -105,7 +105,7 @@ def test_only_and_from_pick_steps_in_plan_order() -> None:
 
 
 def test_the_quick_paper_study_ends_with_every_table_and_resumes_for_free(tmp_path: Path, capsys) -> None:
-    root = tmp_path / "paper"  # 60 learning steps instead of --quick's 300: the same 24 steps and tables, a quarter less time
+    root = tmp_path / "paper"  # 60 learning steps instead of --quick's 300: the same 24 steps and tables, faster
     argv = ["reproduce", "paper", "--quick", "--set", "steps=60", "--workers", "2", "--out", str(root)]
     code, out, err = _main(argv, capsys)
     assert code == 0, err
