@@ -52,23 +52,25 @@ TASK_PRESETS: dict[str, dict[str, Any]] = {
     "navigation": {"steps": 27000, "restart_below": None, "params": {"new_q": "nearest"},
                    "branch_restart_below": [-5.0, -9.0, -9.0, -9.0], "committee": 1, "learning": "imitation",
                    "actions": "fine_stop", "decision_frames": 3, "stop_rule": "road_user",
-                   "traffic": ["empty", "regular", "dense"]},
+                   "traffic": ["empty", "regular", "dense"], "state": "road_users_weighted"},
 }
 """Overrides a task makes on top of the variant's preset (an option, --config or --set goes on top), chosen on the
 validation suites (docs/navigation-study.md). Navigation (outside the paper; what models/brl_nav ships, section
 12.18): one command-conditioned mixture per seed that learns by imitation of the privileged expert (DAgger, 8
 iterations of 300 episodes in Empty, Regular and Dense town01 traffic), with the fine steering primitives and `stop`,
-a decision every 3 frames, and `stop` only where the state shows a road user; its fit uses the agent parameters
-below (`new_q = "nearest"`: a new component starts from its nearest component's action values). Its steps and
-restarts (unused by imitation) are those of the empty-road committees of issue 20 (models/brl_nav_empty), which `--set
-learning=td --set actions=paper --set decision_frames=7 --set stop_rule=any --set 'traffic=[]' --set committee=7`
-trains: six times the paper's t_max, no lane-keeping trap restart, a trap restart per branch (follow -5, turns -9)."""
+a decision every 3 frames, `stop` only where the state shows a road user, and the state with vehicle and pedestrian
+pixels weighted 5 times (`state = "road_users_weighted"`, section 12.23; `--set state=paper` trains the paper's
+state, the preset of sections 12.18-12.19); its fit uses the agent parameters below (`new_q = "nearest"`: a new
+component starts from its nearest component's action values). Its steps and restarts (unused by imitation) are those
+of the empty-road committees of issue 20 (models/brl_nav_empty), which `--set learning=td --set actions=paper --set
+decision_frames=7 --set stop_rule=any --set 'traffic=[]' --set committee=7 --set state=paper` trains: six times the
+paper's t_max, no lane-keeping trap restart, a trap restart per branch (follow -5, turns -9)."""
 
 NAVIGATION_TD_RECIPE: dict[str, Any] = {"learning": "td", "actions": "paper", "decision_frames": 7, "stop_rule": "any",
-                                        "traffic": [], "committee": 7}
+                                        "traffic": [], "committee": 7, "state": "paper"}
 """The keys that turn the navigation preset back into the empty-road TD committees of issue 20 (models/brl_nav_empty;
 `--set learning=td --set actions=paper --set decision_frames=7 --set stop_rule=any --set 'traffic=[]' --set
-committee=7`)."""
+committee=7 --set state=paper`)."""
 
 
 def set_options(values: dict[str, Any]) -> list[str]:
