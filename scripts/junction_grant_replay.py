@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,7 @@ import numpy as np
 
 from brlcli.bench.runner import run_episode, world_for
 from brlcli.bench.suites import build_suite
+from brlcli.errors import BrlInputError
 from brlcli.policy import BRLPolicy
 from brlcli.provenance import atomic_write_json
 from brlcli.report.load import load_results
@@ -43,7 +45,7 @@ class GrantProbe:
         self.original = traffic._junction_stop_gap
         self.frame = 0
         self.last_grant: dict[int, dict[str, float]] = {}
-        self.ego_dist_before: dict[int, float] = {}
+        self.ego_dist_before = np.full(len(traffic._node_xy), np.inf)  # per junction, at the previous frame
         traffic._junction_stop_gap = self._wrapped
 
     def _wrapped(self, dt_s: float, ego_x: float, ego_y: float) -> np.ndarray:
@@ -55,11 +57,10 @@ class GrantProbe:
         dist = np.hypot(nodes[:, 0] - ego_x, nodes[:, 1] - ego_y)
         for i in np.flatnonzero(t.v_go & ~before):
             node = int(t._path_to[int(t.v_path[i])])
-            prev = self.ego_dist_before.get(node, math.inf)
             self.last_grant[int(i)] = {"frame": self.frame, "node": node, "ego_dist_m": float(dist[node]),
-                                       "ego_closing": bool(dist[node] < prev - 0.05),
+                                       "ego_closing": bool(dist[node] < self.ego_dist_before[node] - 0.05),
                                        "ego_speed_ms": float(t._ego_speed)}
-        self.ego_dist_before = {k: float(dist[k]) for k in range(len(nodes))}
+        self.ego_dist_before = dist
         return out
 
     def restore(self) -> None:
@@ -77,8 +78,14 @@ def main() -> None:
     ap.add_argument("--timeouts", action="store_true")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
-    results = load_results([args.bench])
+    try:
+        results = load_results([args.bench])
+        policy = BRLPolicy("replay", args.model)
+    except BrlInputError as exc:
+        print(f"junction_grant_replay: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     bench_seed = int(json.loads((args.bench / "bench.json").read_text())["config"]["seed"])
+
     def wanted(r: dict[str, Any]) -> bool:
         """A vehicle crash (or with --timeouts a timeout) of the chosen traffic level."""
         if args.traffic is not None and r["task"] != args.traffic:
@@ -89,7 +96,6 @@ def main() -> None:
 
     rows = [r for r in results.episodes if wanted(r)][:args.limit]
     specs = {s.id: s for s in build_suite(rows[0]["suite"])} if rows else {}
-    policy = BRLPolicy("replay", args.model)
     cache: dict[tuple, Any] = {}
     out = []
     for row in rows:

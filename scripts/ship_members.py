@@ -29,6 +29,7 @@ import numpy as np
 from brlcli.agent.bayes import deployment_arrays
 from brlcli.agent.command import is_command_model, load_navigation_agent
 from brlcli.agent.committee import load_lane_keeping_agent
+from brlcli.errors import BrlInputError
 
 
 def ship_member(src: Path, dst: Path, deployment: bool = False) -> None:
@@ -47,7 +48,11 @@ def ship_member(src: Path, dst: Path, deployment: bool = False) -> None:
                 back[k].dtype != v.dtype or back[k].tobytes() != v.tobytes() for k, v in arrays.items()):
             os.unlink(tmp)
             raise SystemExit(f"{src}: the compressed copy differs from the model")
-    (load_navigation_agent if is_command_model(tmp) else load_lane_keeping_agent)(tmp)  # brl reads it back
+    try:  # brl reads it back (a deployment copy included)
+        (load_navigation_agent if is_command_model(tmp) else load_lane_keeping_agent)(tmp)
+    except BrlInputError as exc:
+        os.unlink(tmp)
+        raise SystemExit(f"{src}: brl cannot read the shipped copy: {exc}") from None
     os.replace(tmp, dst / "model.npz")
     log = ["iterations.csv"] if (src / "iterations.csv").exists() else []  # an imitation run's DAgger iterations
     for name in (*log, "config.json", "summary.json"):  # summary last: it marks the run as finished
