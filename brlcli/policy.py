@@ -229,7 +229,8 @@ class BRLPolicy(StatePolicy):
         label = self.variant if self.task == "lane-keeping" else f"{self.variant}, navigation"
         if self.task == "navigation":
             label += ", fine steering" if actions.startswith("fine") else ""
-            label += ", brake gate" if gated else ", stop primitive" if actions.endswith("stop") else ", no brake"
+            label += ", slow full turns" if actions.endswith("slow") else ""
+            label += ", brake gate" if gated else ", stop primitive" if STOP in ACTION_SETS[actions] else ", no brake"
         if config.get("learning") == "imitation":
             label += ", imitating driver" if gated else ", imitation"
         if state != "paper":

@@ -304,7 +304,8 @@ class DeepRLPolicy(StatePolicy):
                          actions=actions)
 
 
-_ACTIONS_LABEL = {"stop": "stop primitive", "fine": "fine steering", "fine_stop": "fine steering, stop primitive"}
+_ACTIONS_LABEL = {"stop": "stop primitive", "fine": "fine steering", "fine_stop": "fine steering, stop primitive",
+                  "fine_stop_slow": "fine steering, slow full turns, stop primitive"}
 
 
 @dataclass

@@ -33,13 +33,22 @@ FINE_STEER = (0.15, 0.05)
 brake) the expert restricted to an agent's actions keeps its lane beside oncoming traffic (docs/navigation-study.md)."""
 FINE_ACTIONS = tuple(Control(steer=sign * s, throttle=ACTIONS[1].throttle) for s in FINE_STEER for sign in (1.0, -1.0))
 FINE_NAMES = ("right_0.15", "left_0.15", "right_0.05", "left_0.05")
+SLOW_TURN_THROTTLE = 0.262
+"""Throttle of the slow full turns of the `fine_stop_slow` action set (outside the paper, issue 35): the car settles
+at 12 km/h, the expert's turn speed (`brlcli.autopilot.TURN_KMH`), where the paper's 0.35 settles at 16.2 km/h; at a
+decision every 3 frames one full-steering decision then turns the car by about 6 degrees instead of 9."""
+SLOW_TURNS = tuple(Control(steer=a.steer, throttle=SLOW_TURN_THROTTLE) for a in ACTIONS[1:3])
 ACTION_SETS: dict[str, tuple[Control, ...]] = {"paper": ACTIONS, "stop": (*ACTIONS, STOP),
                                                "fine": (*ACTIONS, *FINE_ACTIONS),
-                                               "fine_stop": (*ACTIONS, *FINE_ACTIONS, STOP)}
+                                               "fine_stop": (*ACTIONS, *FINE_ACTIONS, STOP),
+                                               "fine_stop_slow": (ACTIONS[0], *SLOW_TURNS, ACTIONS[3], *FINE_ACTIONS,
+                                                                  STOP)}
 """Action sets: the paper's four primitives; those and `stop`; those and four finer turns, right / left at
-FINE_STEER; or those and `stop` (all but the first outside the paper)."""
+FINE_STEER; those and `stop`; or that set with its full turns at SLOW_TURN_THROTTLE (all but the first outside the
+paper; the last three have the same primitives in the same order, so their models have the same shape)."""
 ACTION_SET_NAMES = {"paper": ACTION_NAMES, "stop": (*ACTION_NAMES, "stop"), "fine": (*ACTION_NAMES, *FINE_NAMES),
-                    "fine_stop": (*ACTION_NAMES, *FINE_NAMES, "stop")}
+                    "fine_stop": (*ACTION_NAMES, *FINE_NAMES, "stop"),
+                    "fine_stop_slow": ("forward", "right_slow", "left_slow", "backward", *FINE_NAMES, "stop")}
 GATE_DRIVER_ACTIONS = {"paper": "stop", "fine": "fine_stop"}
 """A brake gate's driver action sets and the set its runs drive with: the driver's and `stop` last."""
 STOP_RULES = ("any", "road_user")
