@@ -299,9 +299,7 @@ def test_every_shipped_model_set_benches_as_shipped(tmp_path: Path) -> None:
     root = Path(__file__).resolve().parents[1] / "models"
     for name in ("brl_gt", "brl_gt_paper", "brl_te", "brl_nav", "brl_nav_empty"):
         found = find_models(None, [str(root / name)])
-        # brl_nav is being re-shipped (navigation-study 12.25): seeds 0, 1, ... in order, none skipped, up to nine
-        count = min(len(found), 9) if name == "brl_nav" and found else 9
-        assert [n for n, _ in found] == [f"{name}/seed_{k}" for k in range(count)], name
+        assert [n for n, _ in found] == [f"{name}/seed_{k}" for k in range(9)], name
         for policy_name, path in found:
             policy = BRLPolicy(policy_name, path)
             assert policy.task == ("navigation" if name.startswith("brl_nav") else "lane-keeping")
