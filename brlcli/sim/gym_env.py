@@ -45,7 +45,7 @@ ACTION_SETS: dict[str, tuple[Control, ...]] = {"paper": ACTIONS, "stop": (*ACTIO
                                                                   STOP)}
 """Action sets: the paper's four primitives; those and `stop`; those and four finer turns, right / left at
 FINE_STEER; those and `stop`; or that set with its full turns at SLOW_TURN_THROTTLE (all but the first outside the
-paper; the last three have the same primitives in the same order, so their models have the same shape)."""
+paper; the last two differ only in their full turns' throttle, so their models have the same shape)."""
 ACTION_SET_NAMES = {"paper": ACTION_NAMES, "stop": (*ACTION_NAMES, "stop"), "fine": (*ACTION_NAMES, *FINE_NAMES),
                     "fine_stop": (*ACTION_NAMES, *FINE_NAMES, "stop"),
                     "fine_stop_slow": ("forward", "right_slow", "left_slow", "backward", *FINE_NAMES, "stop")}
