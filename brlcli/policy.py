@@ -31,6 +31,7 @@ from brlcli.sim.gym_env import (
     GATE_DRIVER_ACTIONS,
     STOP,
     STOP_RULES,
+    action_set_traits,
     nearest_forward,
 )
 from brlcli.sim.vehicle import Control
@@ -228,9 +229,9 @@ class BRLPolicy(StatePolicy):
         self.variant = model_variant(Path(model))
         label = self.variant if self.task == "lane-keeping" else f"{self.variant}, navigation"
         if self.task == "navigation":
-            label += ", fine steering" if actions.startswith("fine") else ""
-            label += ", slow full turns" if actions.endswith("slow") else ""
-            label += ", brake gate" if gated else ", stop primitive" if STOP in ACTION_SETS[actions] else ", no brake"
+            traits = action_set_traits(actions)
+            brake = "brake gate" if gated else "stop primitive" if "stop primitive" in traits else "no brake"
+            label += "".join(f", {t}" for t in traits if t != "stop primitive") + f", {brake}"
         if config.get("learning") == "imitation":
             label += ", imitating driver" if gated else ", imitation"
         if state != "paper":

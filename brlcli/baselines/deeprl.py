@@ -44,7 +44,7 @@ from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
 from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.sim.camera import CameraConfig
-from brlcli.sim.gym_env import ACTION_SETS, DrivingEnv
+from brlcli.sim.gym_env import ACTION_SETS, DrivingEnv, action_set_traits
 from brlcli.sim.navroutes import TASK_ROUTE_KINDS, TASKS
 from brlcli.sim.roadnet import BRANCH_NAMES, command_branch
 from brlcli.torchfiles import load_torch_doc, save_torch_doc
@@ -297,15 +297,11 @@ class DeepRLPolicy(StatePolicy):
         pitch = float(meta["train"].get("camera_pitch_deg", CameraConfig().pitch_deg))
         nav = self.task == "navigation"
         actions = str(meta["train"].get("actions", "paper"))
-        label = ", ".join(["navigation"] * nav + ([_ACTIONS_LABEL[actions]] if actions != "paper" else []))
+        label = ", ".join(["navigation"] * nav + action_set_traits(actions))
         super().__init__(name, f"{setting} ({label})" if label else setting,
                          greedy_command_action_fn(net) if nav else greedy_action_fn(net),
                          labeler_for(deploy, segnet), CameraConfig(pitch_deg=pitch), uses_command=nav,
                          actions=actions)
-
-
-_ACTIONS_LABEL = {"stop": "stop primitive", "fine": "fine steering", "fine_stop": "fine steering, stop primitive",
-                  "fine_stop_slow": "fine steering, slow full turns, stop primitive"}
 
 
 @dataclass

@@ -49,6 +49,16 @@ paper; the last two differ only in their full turns' throttle, so their models h
 ACTION_SET_NAMES = {"paper": ACTION_NAMES, "stop": (*ACTION_NAMES, "stop"), "fine": (*ACTION_NAMES, *FINE_NAMES),
                     "fine_stop": (*ACTION_NAMES, *FINE_NAMES, "stop"),
                     "fine_stop_slow": ("forward", "right_slow", "left_slow", "backward", *FINE_NAMES, "stop")}
+
+
+def action_set_traits(actions: str) -> list[str]:
+    """How action set `actions` differs from the paper's four primitives, for settings: any of 'fine steering',
+    'slow full turns' and 'stop primitive', read off the set's primitives."""
+    primitives = ACTION_SETS[actions]
+    traits = {"fine steering": FINE_ACTIONS, "slow full turns": SLOW_TURNS, "stop primitive": (STOP,)}
+    return [name for name, members in traits.items() if any(a in primitives for a in members)]
+
+
 GATE_DRIVER_ACTIONS = {"paper": "stop", "fine": "fine_stop"}
 """A brake gate's driver action sets and the set its runs drive with: the driver's and `stop` last."""
 STOP_RULES = ("any", "road_user")
