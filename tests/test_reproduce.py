@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from brlcli.errors import BrlInputError
-from brlcli.reproduce import STUDIES, StudyOptions, build_plan, run_plan, select_steps
+from brlcli.reproduce import STUDIES, StudyOptions, best_model, build_plan, run_plan, select_steps
 
 
 def _main(args: list[str], capsys) -> tuple[int, str, str]:
@@ -105,8 +105,9 @@ def test_only_and_from_pick_steps_in_plan_order() -> None:
 
 
 def test_the_quick_paper_study_ends_with_every_table_and_resumes_for_free(tmp_path: Path, capsys) -> None:
-    root = tmp_path / "paper"  # 60 learning steps instead of --quick's 300: the same 24 steps and tables, faster
-    argv = ["reproduce", "paper", "--quick", "--set", "steps=60", "--workers", "2", "--out", str(root)]
+    root = tmp_path / "paper"  # one seed, 60 learning steps instead of --quick's 300: the same 24 steps and tables,
+    # faster; two steps at a time, each a process of its own
+    argv = ["reproduce", "paper", "--quick", "--seeds", "0", "--set", "steps=60", "--jobs", "2", "--out", str(root)]
     code, out, err = _main(argv, capsys)
     assert code == 0, err
     assert out.strip().splitlines()[-1] == str(root.resolve() / "report")
@@ -116,6 +117,22 @@ def test_the_quick_paper_study_ends_with_every_table_and_resumes_for_free(tmp_pa
     assert len(list((root / "steps").glob("*.json"))) == len(build_plan("paper", StudyOptions(quick=True)))
     code, _, err = _main(argv, capsys)
     assert code == 0 and "0 steps run, 24 already finished" in err
+
+
+def test_the_best_model_has_the_highest_validation_score_and_ties_go_to_the_lowest_seed(tmp_path: Path) -> None:
+    def seed(n: int, score: float | None) -> None:
+        (tmp_path / f"seed_{n}").mkdir()
+        if score is not None:
+            summary = {"summary": {"eval": {"score": score}}}
+            (tmp_path / f"seed_{n}" / "summary.json").write_text(json.dumps(summary))
+
+    with pytest.raises(BrlInputError, match="no finished seed_N"):
+        best_model(tmp_path)
+    seed(0, 0.5)
+    seed(1, 0.9)
+    seed(2, None)  # unfinished: not a candidate
+    seed(10, 0.9)
+    assert best_model(tmp_path) == tmp_path / "seed_1"
 
 
 def test_parallel_steps_start_when_their_inputs_finished_and_a_failure_stops_the_run(tmp_path: Path) -> None:
