@@ -84,10 +84,9 @@ def fit_mixture(states: np.ndarray, commands: np.ndarray, labels: np.ndarray, cf
     params = replace(cfg.agent_params(), rho_init=rho, rho_final=rho, **IMITATION_THRESHOLDS)
     agent = CommandAgent(states.shape[1], len(controls), params)
     rewards = -IMITATION_TEACHER * teacher_distances(controls, cfg.imitation_stop_weight)
+    by_label = np.ascontiguousarray(rewards.T)  # by_label[label][a]: action a's reward where the expert took label
     for i in np.random.default_rng(order_seed).permutation(len(labels)):
-        state, branch = states[i], agent.branch(int(commands[i]))
-        for a in range(len(controls)):
-            branch.learn(state, a, float(rewards[a, labels[i]]), state, next_value=0.0)
+        agent.branch(int(commands[i])).learn_every_action(states[i], by_label[labels[i]])
     return agent
 
 

@@ -493,6 +493,54 @@ def test_td_error_component_per_variant(variant: str) -> None:
     assert step.component == 0  # both variants update the l_inf-nearest component
 
 
+@pytest.mark.parametrize("variant", ["paper", "reference-code"])
+@pytest.mark.parametrize(("new_q", "step_size"), [("constant", "schedule"), ("nearest", "action-visits"),
+                                                  ("nearest", "visits")])
+@pytest.mark.parametrize(("max_components", "at_capacity"), [(2000, "merge"), (20, "merge"), (20, "skip")])
+def test_learning_every_action_at_once_equals_one_learn_call_per_action(variant: str, new_q: str, step_size: str,
+                                                                        max_components: int,
+                                                                        at_capacity: str) -> None:
+    params = BRLParams(variant=variant, new_q=new_q, step_size=step_size, max_components=max_components,
+                       at_capacity=at_capacity, init_scatter=0.001)
+    one, every = BayesianAgent(D, 6, params), BayesianAgent(D, 6, params)
+    rng = np.random.default_rng(3)
+    states = rng.dirichlet(np.full(D, 0.2), size=40)
+    for i in range(160):  # repeated states (cache hits), creations, capacity growth and the cap
+        s = states[int(rng.integers(len(states)))]
+        rewards = -20.0 * rng.choice([0.0, 0.05, 0.4, 2.0], size=6)  # the teacher's: 0 for the label
+        for a in range(6):
+            one.learn(s, a, float(rewards[a]), s, next_value=0.0)
+        every.learn_every_action(s, rewards)
+        if i % 40 == 39:
+            assert_agents_identical(one, every)
+    assert_agents_identical(one, every)
+    assert one.n_components > 16  # grew past the first allocation
+    assert np.array_equal(one.action_probabilities(states[0]), every.action_probabilities(states[0]))
+    with pytest.raises(ValueError, match="rewards must be 6 finite numbers"):
+        every.learn_every_action(states[0], np.zeros(5))
+
+
+@pytest.mark.parametrize("reference_code", [False, True])
+def test_decide_without_the_next_state_equals_the_full_step(reference_code: bool) -> None:
+    from brlcli.agent import _kernels
+
+    rng = np.random.default_rng(4)
+    n, n_act = 50, 5
+    for _ in range(30):
+        q = rng.normal(-3.0, 4.0, size=(n_act, n + 3))
+        pma, _, p_m = _kernels.tables(q, n, reference_code)
+        for a_t in range(n_act):
+            col, p_m_col = _kernels._taken_column(q, n, a_t, reference_code)
+            assert np.array_equal(col, pma[:, a_t]) and np.array_equal(p_m_col, p_m)
+        ll = rng.normal(-5.0, 20.0, size=(2, n + 3))
+        dist = rng.uniform(0.0, 1.0, size=(2, n + 3))
+        a_t, reward = int(rng.integers(n_act)), float(rng.uniform(-30.0, 5.0))
+        # gamma 1e-300 takes the full step (a', m') and adds nothing a reward of this size can hold
+        fast = _kernels.decide(ll, dist, 0, 1, q, n, a_t, reward, 0.0, -10.0, -5.0, reference_code)
+        full = _kernels.decide(ll, dist, 0, 1, q, n, a_t, reward, 1e-300, -10.0, -5.0, reference_code)
+        assert fast == full
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # capacity
 # ---------------------------------------------------------------------------------------------------------------

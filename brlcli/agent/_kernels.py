@@ -259,36 +259,169 @@ def next_value(ll: np.ndarray, q: np.ndarray, n: int, over_actions: bool) -> flo
 
 
 @_jit
+def _taken_column(q: np.ndarray, n: int, a_t: int, over_actions: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(p(m|a_t) (n,), p(m) (n,)): column a_t of `tables`' p(m|a) and its p(m), the same arithmetic, without the other
+    actions' columns (what `decide` needs when it does not look at the next state)."""
+    n_act = q.shape[0]
+    q_min = math.inf
+    for a in range(n_act):
+        for m in range(n):
+            if q[a, m] < q_min:
+                q_min = q[a, m]
+    q_hat = abs(q_min) / (1.0 + abs(q_min)) - q_min
+    col = np.empty(n)
+    row = np.zeros(n)
+    for m in range(n):
+        for a in range(n_act):
+            row[m] += q[a, m] + q_hat
+        col[m] = q[a_t, m] + q_hat
+    p_m = _normalised(row)
+    if over_actions:
+        for m in range(n):
+            t = row[m]
+            col[m] = col[m] / t if t > 0.0 and math.isfinite(t) else 1.0 / n_act
+    else:
+        t = 0.0
+        for m in range(n):
+            t += col[m]
+        ok = t > 0.0 and math.isfinite(t)
+        for m in range(n):
+            col[m] = col[m] / t if ok else 1.0 / n
+    return col, p_m
+
+
+@_jit
+def _log_argmax_column(ll: np.ndarray, p: np.ndarray) -> int:
+    """`_log_argmax` on one column p of p(m|a)."""
+    best, best_v = 0, -math.inf
+    for m in range(p.shape[0]):
+        v = ll[m] + (math.log(p[m]) if p[m] > 0.0 else -math.inf)
+        if m == 0 or v > best_v:
+            best, best_v = m, v
+    return best
+
+
+@_jit
 def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.ndarray, n: int, a_t: int,
            reward: float, gamma: float, t_l: float, t_u: float,
            reference_code: bool) -> tuple[float, int, float, float, int]:
-    """Steps 1-3 of Algorithm 1 and the weight of eq. 9 for m_t: (td, m_t, d_t, weight, case 0 good/1 bad/2 neutral)."""
-    pma, p_a, p_m = tables(q, n, reference_code)
+    """Steps 1-3 of Algorithm 1 and the weight of eq. 9 for m_t: (td, m_t, d_t, weight, case 0 good/1 bad/2 neutral).
+    With gamma 0 and a reward other than 0, reward + gamma Q[a', m'] is the reward exactly (Q is finite), so a' and
+    m' are not computed and only p(m|a_t) of eqs. 2-4 is."""
+    skip_next = gamma == 0.0 and reward != 0.0
+    if skip_next:
+        pm_a, p_m = _taken_column(q, n, a_t, reference_code)
+    else:
+        pma, p_a, p_m = tables(q, n, reference_code)
+        pm_a = pma[:, a_t]
     ll_t = ll[row_t]
-    ll_next = ll[row_next]
     dt = dist[row_t]
     m_t = 0
     for m in range(1, n):
         if dt[m] < dt[m_t]:
             m_t = m
     lik = _shifted(ll_t, n)
-    a_next = _argmax(_p_action(_shifted(ll_next, n), pma, p_a))
-    m_next = _log_argmax(ll_next, pma, a_next)
-    m_delta = _log_argmax(ll_t, pma, a_t) if reference_code else m_t
-    td = reward + gamma * q[a_next, m_next] - q[a_t, m_delta]
+    m_delta = _log_argmax_column(ll_t, pm_a) if reference_code else m_t
+    if skip_next:
+        td = reward - q[a_t, m_delta]
+    else:
+        ll_next = ll[row_next]
+        a_next = _argmax(_p_action(_shifted(ll_next, n), pma, p_a))
+        m_next = _log_argmax(ll_next, pma, a_next)
+        td = reward + gamma * q[a_next, m_next] - q[a_t, m_delta]
     num = np.empty(n)
     if td > t_u:
         case = 0
         for m in range(n):
-            num[m] = lik[m] * pma[m, a_t]
+            num[m] = lik[m] * pm_a[m]
     elif td < t_l:
         case = 1
         if n == 1:  # p(m|a) = 1 makes eq. 10 0/0; defined as 1 for the only component
             return td, m_t, dt[m_t], 1.0, case
         for m in range(n):
-            num[m] = lik[m] * (1.0 - pma[m, a_t])
+            num[m] = lik[m] * (1.0 - pm_a[m])
     else:
         case = 2
         for m in range(n):
             num[m] = lik[m] * p_m[m]
     return td, m_t, dt[m_t], _normalised(num)[m_t], case
+
+STEP_SIZE_CODES = {"schedule": 0, "visits": 1, "action-visits": 2}
+"""`BRLParams.step_size` as the code `learn_every_action` takes."""
+
+
+@_jit
+def _absorb(m: int, a_t: int, s_t: np.ndarray, td: float, weight: float, alpha: float, step_size: int,
+            q: np.ndarray, visits: np.ndarray, mean: np.ndarray, kappa: np.ndarray, nu: np.ndarray,
+            scatter: np.ndarray, chol: np.ndarray, linv: np.ndarray, tpar: np.ndarray, cache_states: np.ndarray,
+            cache_ll: np.ndarray, cache_dist: np.ndarray) -> None:
+    """`BayesianAgent._update`: the Q update (eq. 8) and the fractional NIW update of component m, caches patched."""
+    dim = mean.shape[1]
+    kappa_m = kappa[m]
+    step = alpha
+    if step_size == 1:
+        step = min(step, 1.0 / (kappa_m - dim))
+    elif step_size == 2:
+        step = min(step, 1.0 / (visits[a_t, m] + 1.0))
+    q[a_t, m] += step * weight * td
+    visits[a_t, m] += weight
+    if weight == 0.0:
+        return
+    niw_absorb(mean[m], scatter[m], chol[m], s_t, weight, kappa_m)
+    kappa[m] = kappa_m + weight
+    nu[m] += weight
+    refresh(chol, kappa, nu, linv, tpar, m)
+    evaluate(cache_states, 0, cache_states.shape[0], mean, linv, tpar, m, m + 1, cache_ll, cache_dist)
+
+
+@_jit
+def learn_every_action(row_t: int, rewards: np.ndarray, n: int, alpha: float, tau: float, rho: float,
+                       scalars: np.ndarray, codes: np.ndarray, q: np.ndarray, visits: np.ndarray, mean: np.ndarray,
+                       kappa: np.ndarray, nu: np.ndarray, scatter: np.ndarray, chol: np.ndarray, linv: np.ndarray,
+                       tpar: np.ndarray, cache_states: np.ndarray, cache_ll: np.ndarray,
+                       cache_dist: np.ndarray) -> tuple[int, float, float, float]:
+    """`BayesianAgent.learn(s, a, rewards[a], s, next_value=0.0)` for a = 0, 1, ... in turn, s the state in cache row
+    row_t, the same arithmetic in the same order: returns (n, alpha, tau, rho) after them. The arrays need room for
+    one new component per action. scalars: (gamma, T_l, T_u, alpha_rate, alpha_final, tau_rate, tau_final, rho_rate,
+    rho_final, init_scatter, init_q, new_q_taken); codes: (reference_code, step_size code, max_components, new_q
+    nearest, at_capacity merge)."""
+    gamma, t_l, t_u = scalars[0], scalars[1], scalars[2]
+    reference_code, step_size, max_components = codes[0] != 0, codes[1], codes[2]
+    nearest, merge = codes[3] != 0, codes[4] != 0
+    dim = mean.shape[1]
+    s_t = cache_states[row_t].copy()
+    for a_t in range(rewards.shape[0]):
+        reward_in = rewards[a_t] + gamma * 0.0
+        td, m_t, d_t, weight, _ = decide(cache_ll, cache_dist, row_t, row_t, q, n, a_t, reward_in, 0.0, t_l, t_u,
+                                         reference_code)
+        if d_t < rho or td > t_l:
+            _absorb(m_t, a_t, s_t, td, weight, alpha, step_size, q, visits, mean, kappa, nu, scatter, chol, linv,
+                    tpar, cache_states, cache_ll, cache_dist)
+        elif n < max_components:  # BayesianAgent._add_component at s_t
+            m = n
+            mean[m] = s_t
+            nu[m] = dim
+            kappa[m] = dim + 1
+            scatter[m] = 0.0
+            chol[m] = 0.0
+            root = math.sqrt(scalars[9])
+            for i in range(dim):
+                scatter[m, i, i] = scalars[9]
+                chol[m, i, i] = root
+            q[:, m] = scalars[10]
+            visits[:, m] = 0.0
+            n = m + 1
+            refresh(chol, kappa, nu, linv, tpar, m)
+            evaluate(cache_states, 0, cache_states.shape[0], mean, linv, tpar, m, m + 1, cache_ll, cache_dist)
+            if nearest:
+                q[:, m] = q[:, m_t]
+                q[a_t, m] = q[a_t, m_t] + td
+            else:
+                q[a_t, m] = scalars[11]
+        elif merge:
+            _absorb(m_t, a_t, s_t, td, weight, alpha, step_size, q, visits, mean, kappa, nu, scatter, chol, linv,
+                    tpar, cache_states, cache_ll, cache_dist)
+        alpha += scalars[3] * (scalars[4] - alpha)
+        tau += scalars[5] * (scalars[6] - tau)
+        rho += scalars[7] * (scalars[8] - rho)
+    return n, alpha, tau, rho

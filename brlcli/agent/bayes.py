@@ -473,6 +473,30 @@ class BayesianAgent:
         self._steps += 1
         return LearnStep(td_error, *step, self._n, self._alpha, self._tau, self._rho)
 
+    def learn_every_action(self, state: np.ndarray, rewards: np.ndarray) -> None:
+        """`learn(state, a, rewards[a], state, next_value=0.0)` for every action a in turn, in one compiled call: the
+        same model, bit for bit (the imitation fit's inner loop, `brlcli.imitation.fit_mixture`)."""
+        if self._deployment:
+            raise BrlInputError("this model is a deployment copy without its scatter matrices (a shipped model): it "
+                                "can drive but not learn; train from the run's own model.npz instead")
+        rewards = np.ascontiguousarray(rewards, dtype=np.float64)
+        if rewards.shape != (self._n_actions,) or not _kernels.all_finite(rewards):
+            raise ValueError(f"rewards must be {self._n_actions} finite numbers, got {rewards!r}")
+        p = self._params
+        while self._n + self._n_actions > self._capacity() and self._capacity() < p.max_components:
+            self._allocate(min(2 * self._capacity(), p.max_components))  # before the cache row: this clears it
+        row_t = self._cached_row(*self._checked(state, "state"))
+        scalars = np.array([p.gamma, p.T_l, p.T_u, p.alpha_rate, p.alpha_final, p.tau_rate, p.tau_final, p.rho_rate,
+                            p.rho_final, p.init_scatter, p.init_q, p.new_q_taken])
+        codes = np.array([p.variant != "paper", _kernels.STEP_SIZE_CODES[p.step_size], p.max_components,
+                          p.new_q == "nearest", p.at_capacity == "merge"], dtype=np.int64)
+        n, alpha, tau, rho = _kernels.learn_every_action(
+            row_t, rewards, self._n, self._alpha, self._tau, self._rho, scalars, codes, self._q, self._visits,
+            self._mean, self._kappa, self._nu, self._scatter, self._chol, self._chol_inv_packed, self._t_params,
+            self._cache_states, self._cache_ll, self._cache_dist)
+        self._n, self._alpha, self._tau, self._rho = int(n), float(alpha), float(tau), float(rho)
+        self._steps += self._n_actions
+
     def _update(self, m: int, a_t: int, s_t: np.ndarray, td_error: float, weight: float, row_t: int) -> None:
         """Q update (eq. 8) and fractional NIW update of component m with weight w."""
         kappa = float(self._kappa[m])
