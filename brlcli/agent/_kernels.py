@@ -142,15 +142,21 @@ def evaluate(states: np.ndarray, row_lo: int, row_hi: int, mean: np.ndarray, lin
 
 
 @_jit
-def tables(q: np.ndarray, n: int, over_actions: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Eqs. 2-4 from Q[:, :n] + qhat: (p(m|a) (n, A) normalised over m, or over a if over_actions; p(a); p(m))."""
-    n_act = q.shape[0]
+def _q_hat(q: np.ndarray, n: int) -> float:
+    """The offset qhat = |q_min| / (1 + |q_min|) - q_min over Q[:, :n] that makes every Q + qhat positive (eq. 2)."""
     q_min = math.inf
-    for a in range(n_act):
+    for a in range(q.shape[0]):
         for m in range(n):
             if q[a, m] < q_min:
                 q_min = q[a, m]
-    q_hat = abs(q_min) / (1.0 + abs(q_min)) - q_min
+    return abs(q_min) / (1.0 + abs(q_min)) - q_min
+
+
+@_jit
+def tables(q: np.ndarray, n: int, over_actions: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eqs. 2-4 from Q[:, :n] + qhat: (p(m|a) (n, A) normalised over m, or over a if over_actions; p(a); p(m))."""
+    n_act = q.shape[0]
+    q_hat = _q_hat(q, n)
     pma = np.empty((n, n_act))
     col = np.zeros(n_act)
     row = np.zeros(n)
@@ -263,12 +269,7 @@ def _taken_column(q: np.ndarray, n: int, a_t: int, over_actions: bool) -> tuple[
     """(p(m|a_t) (n,), p(m) (n,)): column a_t of `tables`' p(m|a) and its p(m), the same arithmetic, without the other
     actions' columns (what `decide` needs when it does not look at the next state)."""
     n_act = q.shape[0]
-    q_min = math.inf
-    for a in range(n_act):
-        for m in range(n):
-            if q[a, m] < q_min:
-                q_min = q[a, m]
-    q_hat = abs(q_min) / (1.0 + abs(q_min)) - q_min
+    q_hat = _q_hat(q, n)
     col = np.empty(n)
     row = np.zeros(n)
     for m in range(n):
