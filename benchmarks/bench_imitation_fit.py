@@ -19,11 +19,12 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
-def fit_once(run: Path, iteration: int, records: int | None) -> dict:
+def fit_once(run: Path, iteration: int, records: int | None) -> dict[str, Any]:
     """Refit `iteration` of the imitation run in `run` with the brl on sys.path; its seconds and the check."""
     import numpy as np
 
@@ -45,8 +46,8 @@ def fit_once(run: Path, iteration: int, records: int | None) -> dict:
     same = None
     if records is None:
         saved = CommandAgent.load(run / f"iterations/model_{iteration}.npz")
-        same = all(np.array_equal(x.to_arrays()[k], y.to_arrays()[k])
-                   for x, y in zip(agent.branches, saved.branches, strict=True) for k in x.to_arrays())
+        pairs = [(x.to_arrays(), y.to_arrays()) for x, y in zip(agent.branches, saved.branches, strict=True)]
+        same = all(x.keys() == y.keys() and all(x[k].tobytes() == y[k].tobytes() for k in x) for x, y in pairs)
     return {"records": len(columns[2]), "components": agent.total_components, "wall_s": wall, "cpu_s": cpu,
             "equals_saved_model": same}
 

@@ -21,6 +21,9 @@ import numpy as np
 
 from brlcli.jit import jit as _jit
 
+STEP_SIZE_CODES = {"schedule": 0, "visits": 1, "action-visits": 2}
+"""`BRLParams.step_size` as the code `absorb` and `learn_every_action` take."""
+
 
 @_jit
 def all_finite(x: np.ndarray) -> bool:
@@ -245,12 +248,11 @@ def action_probs(ll: np.ndarray, q: np.ndarray, n: int, over_actions: bool) -> n
 
 
 @_jit
-def _log_argmax(ll: np.ndarray, pma: np.ndarray, a: int) -> int:
-    """argmax_m ll[m] + log p(m|a) (first maximum; log 0 = -inf)."""
+def _log_argmax(ll: np.ndarray, p: np.ndarray) -> int:
+    """argmax_m ll[m] + log p[m] for one column p of p(m|a) (first maximum; log 0 = -inf)."""
     best, best_v = 0, -math.inf
-    for m in range(pma.shape[0]):
-        p = pma[m, a]
-        v = ll[m] + (math.log(p) if p > 0.0 else -math.inf)
+    for m in range(p.shape[0]):
+        v = ll[m] + (math.log(p[m]) if p[m] > 0.0 else -math.inf)
         if m == 0 or v > best_v:
             best, best_v = m, v
     return best
@@ -261,7 +263,7 @@ def next_value(ll: np.ndarray, q: np.ndarray, n: int, over_actions: bool) -> flo
     """The value the TD target of `decide` takes at a next state with log-likelihoods ll[:n]: Q[a', m'] (eqs. 6-7)."""
     pma, p_a, _ = tables(q, n, over_actions)
     a_next = _argmax(_p_action(_shifted(ll, n), pma, p_a))
-    return q[a_next, _log_argmax(ll, pma, a_next)]
+    return q[a_next, _log_argmax(ll, pma[:, a_next])]
 
 
 @_jit
@@ -292,17 +294,6 @@ def _taken_column(q: np.ndarray, n: int, a_t: int, over_actions: bool) -> tuple[
 
 
 @_jit
-def _log_argmax_column(ll: np.ndarray, p: np.ndarray) -> int:
-    """`_log_argmax` on one column p of p(m|a)."""
-    best, best_v = 0, -math.inf
-    for m in range(p.shape[0]):
-        v = ll[m] + (math.log(p[m]) if p[m] > 0.0 else -math.inf)
-        if m == 0 or v > best_v:
-            best, best_v = m, v
-    return best
-
-
-@_jit
 def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.ndarray, n: int, a_t: int,
            reward: float, gamma: float, t_l: float, t_u: float,
            reference_code: bool) -> tuple[float, int, float, float, int]:
@@ -322,13 +313,13 @@ def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.nd
         if dt[m] < dt[m_t]:
             m_t = m
     lik = _shifted(ll_t, n)
-    m_delta = _log_argmax_column(ll_t, pm_a) if reference_code else m_t
+    m_delta = _log_argmax(ll_t, pm_a) if reference_code else m_t
     if skip_next:
         td = reward - q[a_t, m_delta]
     else:
         ll_next = ll[row_next]
         a_next = _argmax(_p_action(_shifted(ll_next, n), pma, p_a))
-        m_next = _log_argmax(ll_next, pma, a_next)
+        m_next = _log_argmax(ll_next, pma[:, a_next])
         td = reward + gamma * q[a_next, m_next] - q[a_t, m_delta]
     num = np.empty(n)
     if td > t_u:
@@ -347,16 +338,14 @@ def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.nd
             num[m] = lik[m] * p_m[m]
     return td, m_t, dt[m_t], _normalised(num)[m_t], case
 
-STEP_SIZE_CODES = {"schedule": 0, "visits": 1, "action-visits": 2}
-"""`BRLParams.step_size` as the code `learn_every_action` takes."""
-
 
 @_jit
-def _absorb(m: int, a_t: int, s_t: np.ndarray, td: float, weight: float, alpha: float, step_size: int,
+def absorb(m: int, a_t: int, s_t: np.ndarray, td: float, weight: float, alpha: float, step_size: int,
             q: np.ndarray, visits: np.ndarray, mean: np.ndarray, kappa: np.ndarray, nu: np.ndarray,
             scatter: np.ndarray, chol: np.ndarray, linv: np.ndarray, tpar: np.ndarray, cache_states: np.ndarray,
             cache_ll: np.ndarray, cache_dist: np.ndarray) -> None:
-    """`BayesianAgent._update`: the Q update (eq. 8) and the fractional NIW update of component m, caches patched."""
+    """The Q update (eq. 8) with weight w and the step size of code `step_size`, then the fractional NIW update of
+    component m and its cached L^-1, Student-t constants and cache entries (`BayesianAgent._update`)."""
     dim = mean.shape[1]
     kappa_m = kappa[m]
     step = alpha
@@ -376,6 +365,28 @@ def _absorb(m: int, a_t: int, s_t: np.ndarray, td: float, weight: float, alpha: 
 
 
 @_jit
+def create(m: int, at: np.ndarray, init_scatter: float, init_q: float, q: np.ndarray, visits: np.ndarray,
+           mean: np.ndarray, kappa: np.ndarray, nu: np.ndarray, scatter: np.ndarray, chol: np.ndarray, linv: np.ndarray,
+           tpar: np.ndarray, cache_states: np.ndarray, cache_ll: np.ndarray, cache_dist: np.ndarray) -> None:
+    """Component m at `at`: nu = D, kappa = D + 1, S = init_scatter I, Q = init_q, no visits; its cached L^-1,
+    Student-t constants and cache entries (`BayesianAgent._add_component`)."""
+    dim = mean.shape[1]
+    mean[m] = at
+    nu[m] = dim
+    kappa[m] = dim + 1
+    scatter[m] = 0.0
+    chol[m] = 0.0
+    root = math.sqrt(init_scatter)
+    for i in range(dim):
+        scatter[m, i, i] = init_scatter
+        chol[m, i, i] = root
+    q[:, m] = init_q
+    visits[:, m] = 0.0
+    refresh(chol, kappa, nu, linv, tpar, m)
+    evaluate(cache_states, 0, cache_states.shape[0], mean, linv, tpar, m, m + 1, cache_ll, cache_dist)
+
+
+@_jit
 def learn_every_action(row_t: int, rewards: np.ndarray, n: int, alpha: float, tau: float, rho: float,
                        scalars: np.ndarray, codes: np.ndarray, q: np.ndarray, visits: np.ndarray, mean: np.ndarray,
                        kappa: np.ndarray, nu: np.ndarray, scatter: np.ndarray, chol: np.ndarray, linv: np.ndarray,
@@ -389,38 +400,26 @@ def learn_every_action(row_t: int, rewards: np.ndarray, n: int, alpha: float, ta
     gamma, t_l, t_u = scalars[0], scalars[1], scalars[2]
     reference_code, step_size, max_components = codes[0] != 0, codes[1], codes[2]
     nearest, merge = codes[3] != 0, codes[4] != 0
-    dim = mean.shape[1]
     s_t = cache_states[row_t].copy()
     for a_t in range(rewards.shape[0]):
         reward_in = rewards[a_t] + gamma * 0.0
         td, m_t, d_t, weight, _ = decide(cache_ll, cache_dist, row_t, row_t, q, n, a_t, reward_in, 0.0, t_l, t_u,
                                          reference_code)
         if d_t < rho or td > t_l:
-            _absorb(m_t, a_t, s_t, td, weight, alpha, step_size, q, visits, mean, kappa, nu, scatter, chol, linv,
+            absorb(m_t, a_t, s_t, td, weight, alpha, step_size, q, visits, mean, kappa, nu, scatter, chol, linv,
                     tpar, cache_states, cache_ll, cache_dist)
-        elif n < max_components:  # BayesianAgent._add_component at s_t
+        elif n < max_components:
             m = n
-            mean[m] = s_t
-            nu[m] = dim
-            kappa[m] = dim + 1
-            scatter[m] = 0.0
-            chol[m] = 0.0
-            root = math.sqrt(scalars[9])
-            for i in range(dim):
-                scatter[m, i, i] = scalars[9]
-                chol[m, i, i] = root
-            q[:, m] = scalars[10]
-            visits[:, m] = 0.0
+            create(m, s_t, scalars[9], scalars[10], q, visits, mean, kappa, nu, scatter, chol, linv, tpar, cache_states,
+                   cache_ll, cache_dist)
             n = m + 1
-            refresh(chol, kappa, nu, linv, tpar, m)
-            evaluate(cache_states, 0, cache_states.shape[0], mean, linv, tpar, m, m + 1, cache_ll, cache_dist)
             if nearest:
                 q[:, m] = q[:, m_t]
                 q[a_t, m] = q[a_t, m_t] + td
             else:
                 q[a_t, m] = scalars[11]
         elif merge:
-            _absorb(m_t, a_t, s_t, td, weight, alpha, step_size, q, visits, mean, kappa, nu, scatter, chol, linv,
+            absorb(m_t, a_t, s_t, td, weight, alpha, step_size, q, visits, mean, kappa, nu, scatter, chol, linv,
                     tpar, cache_states, cache_ll, cache_dist)
         alpha += scalars[3] * (scalars[4] - alpha)
         tau += scalars[5] * (scalars[6] - tau)

@@ -58,6 +58,9 @@ _INITIAL_CAPACITY = 16
 
 WEIGHT_CASES = ("good", "bad", "neutral", "created", "capacity")
 
+_CANNOT_LEARN = ("this model is a deployment copy without its scatter matrices (a shipped model): it can drive but "
+                 "not learn; train from the run's own model.npz instead")
+
 _CACHE_ROWS = 2
 """States whose log-likelihoods the agent keeps (s_t and s_{t+1} of the current learning step)."""
 
@@ -247,16 +250,11 @@ class BayesianAgent:
         p = self._params
         if self._n >= self._capacity():
             self._allocate(min(2 * self._capacity(), p.max_components))
-        m, dim = self._n, self._dim
-        self._mean[m] = mean
-        self._nu[m] = dim
-        self._kappa[m] = dim + 1
-        self._scatter[m] = p.init_scatter * np.eye(dim)
-        self._chol[m] = math.sqrt(p.init_scatter) * np.eye(dim)
-        self._q[:, m] = p.init_q
-        self._visits[:, m] = 0.0
+        m = self._n
+        _kernels.create(m, np.ascontiguousarray(mean, dtype=np.float64), p.init_scatter, p.init_q, self._q,
+                        self._visits, self._mean, self._kappa, self._nu, self._scatter, self._chol,
+                        self._chol_inv_packed, self._t_params, self._cache_states, self._cache_ll, self._cache_dist)
         self._n = m + 1
-        self._refresh(m)
         return m
 
     def _checked(self, state: Any, what: str) -> tuple[np.ndarray, bytes, int]:
@@ -420,8 +418,7 @@ class BayesianAgent:
         (the command-conditioned agent, where the next decision belongs to another branch); `next_state` is then
         not read."""
         if self._deployment:
-            raise BrlInputError("this model is a deployment copy without its scatter matrices (a shipped model): it "
-                                "can drive but not learn; train from the run's own model.npz instead")
+            raise BrlInputError(_CANNOT_LEARN)
         p = self._params
         checked_t = self._checked(state, "state")
         if next_value is not None:
@@ -450,7 +447,7 @@ class BayesianAgent:
         s_t = self._cache_states[row_t].copy()
 
         if d_t < self._rho or td_error > p.T_l:
-            self._update(m_t, a_t, s_t, td_error, weight, row_t)
+            self._update(m_t, a_t, s_t, td_error, weight)
             step = (m_t, False, weight, WEIGHT_CASES[case])
         elif self._n < p.max_components:
             m_new = self._add_component(s_t)
@@ -461,7 +458,7 @@ class BayesianAgent:
                 self._q[a_t, m_new] = p.new_q_taken
             step = (m_new, True, math.nan, "created")
         elif p.at_capacity == "merge":
-            self._update(m_t, a_t, s_t, td_error, weight, row_t)
+            self._update(m_t, a_t, s_t, td_error, weight)
             step = (m_t, False, weight, "capacity")
         else:  # "skip"
             step = (m_t, False, 0.0, "capacity")
@@ -477,15 +474,16 @@ class BayesianAgent:
         """`learn(state, a, rewards[a], state, next_value=0.0)` for every action a in turn, in one compiled call: the
         same model, bit for bit (the imitation fit's inner loop, `brlcli.imitation.fit_mixture`)."""
         if self._deployment:
-            raise BrlInputError("this model is a deployment copy without its scatter matrices (a shipped model): it "
-                                "can drive but not learn; train from the run's own model.npz instead")
+            raise BrlInputError(_CANNOT_LEARN)
         rewards = np.ascontiguousarray(rewards, dtype=np.float64)
         if rewards.shape != (self._n_actions,) or not _kernels.all_finite(rewards):
             raise ValueError(f"rewards must be {self._n_actions} finite numbers, got {rewards!r}")
         p = self._params
+        checked = self._checked(state, "state")
         while self._n + self._n_actions > self._capacity() and self._capacity() < p.max_components:
-            self._allocate(min(2 * self._capacity(), p.max_components))  # before the cache row: this clears it
-        row_t = self._cached_row(*self._checked(state, "state"))
+            self._allocate(min(2 * self._capacity(), p.max_components))  # this clears the likelihood cache
+            checked = self._checked(state, "state")
+        row_t = self._cached_row(*checked)
         scalars = np.array([p.gamma, p.T_l, p.T_u, p.alpha_rate, p.alpha_final, p.tau_rate, p.tau_final, p.rho_rate,
                             p.rho_final, p.init_scatter, p.init_q, p.new_q_taken])
         codes = np.array([p.variant != "paper", _kernels.STEP_SIZE_CODES[p.step_size], p.max_components,
@@ -497,22 +495,11 @@ class BayesianAgent:
         self._n, self._alpha, self._tau, self._rho = int(n), float(alpha), float(tau), float(rho)
         self._steps += self._n_actions
 
-    def _update(self, m: int, a_t: int, s_t: np.ndarray, td_error: float, weight: float, row_t: int) -> None:
+    def _update(self, m: int, a_t: int, s_t: np.ndarray, td_error: float, weight: float) -> None:
         """Q update (eq. 8) and fractional NIW update of component m with weight w."""
-        kappa = float(self._kappa[m])
-        step = self._alpha
-        if self._params.step_size == "visits":  # 1 / (weighted updates + 1): kappa starts at D + 1
-            step = min(step, 1.0 / (kappa - self._dim))
-        elif self._params.step_size == "action-visits":
-            step = min(step, 1.0 / (self._visits[a_t, m] + 1.0))
-        self._q[a_t, m] += step * weight * td_error
-        self._visits[a_t, m] += weight
-        if weight == 0.0:
-            return
-        _kernels.niw_absorb(self._mean[m], self._scatter[m], self._chol[m], s_t, weight, kappa)
-        self._kappa[m] = kappa + weight
-        self._nu[m] += weight
-        self._refresh(m)
+        _kernels.absorb(m, a_t, s_t, td_error, weight, self._alpha, _kernels.STEP_SIZE_CODES[self._params.step_size],
+                        self._q, self._visits, self._mean, self._kappa, self._nu, self._scatter, self._chol,
+                        self._chol_inv_packed, self._t_params, self._cache_states, self._cache_ll, self._cache_dist)
 
     # -- persistence -----------------------------------------------------------------------------------------
 
