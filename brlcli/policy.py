@@ -20,7 +20,7 @@ import numpy as np
 
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM, STATE_OPTIONS, agent_state
-from brlcli.retired import RETIRED_CONFIG, retired_message
+from brlcli.retired import RETIRED_CONFIG, retired_message, unknown_action_set
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.settings import setting_name
 from brlcli.sim.camera import CameraConfig
@@ -215,9 +215,11 @@ class BRLPolicy(StatePolicy):
         gated = bool(config.get("brake_gate_steps") or config.get("driver_model"))
         if gated and actions in GATE_DRIVER_ACTIONS:  # a brake gate's driver set and `stop`
             actions = GATE_DRIVER_ACTIONS[actions]
-        if actions not in ACTION_SETS or state not in STATE_OPTIONS:
-            raise BrlInputError(f"model {model}: its config.json names action set '{actions}' and state '{state}', "
-                                f"which this brl does not know ({', '.join(ACTION_SETS)}; {', '.join(STATE_OPTIONS)})")
+        if actions not in ACTION_SETS:
+            raise BrlInputError(f"model {model}: {unknown_action_set(actions, ACTION_SETS)}")
+        if state not in STATE_OPTIONS:
+            raise BrlInputError(f"model {model}: its config.json names state '{state}', which this brl does not know "
+                                f"({', '.join(STATE_OPTIONS)})")
         dim, n_actions = STATE_DIM + STATE_OPTIONS[state], len(ACTION_SETS[actions])
         if self.agent.state_dim == STATE_DIM and self.agent.n_actions == len(ACTIONS) - 1:
             raise BrlInputError(f"model {model} has no backward primitive: "

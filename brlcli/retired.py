@@ -8,6 +8,7 @@ run that did not use the knob) reads as before, and one that used the knob is re
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -58,6 +59,11 @@ RETIRED_PARAMS: dict[str, Retired] = {
 """Retired agent parameters (`params.*`; `BRLParams`, and the `params_json` of model files)."""
 
 
+RETIRED_ACTION_SETS: dict[str, Retired] = {
+    "fine_stop_slow": Retired(None, "docs/navigation-study.md section 12.27", "4e10806"),
+}
+"""Retired values of the `actions` key: action sets measured as not helping (`off` unused)."""
+
 def retired_message(key: str, knob: Retired) -> str:
     """The one line for a retired key: what it was, where its figures are, the commit that reruns it."""
     return (f"'{key}' was retired in brl 0.2 (measured as not helping: {knob.study}); to rerun it, use the brl of "
@@ -81,3 +87,11 @@ def drop_retired(saved: dict[str, Any], table: dict[str, Retired], where: str) -
                 raise BrlInputError(f"{where} was made with {key} = {out[key]!r}: {retired_message(key, knob)}")
             del out[key]
     return out
+
+
+def unknown_action_set(actions: str, known: Iterable[str]) -> str:
+    """The one line for an action set this brl does not have: a retired one (its study, the commit that reruns it)
+    or an unknown name (the sets there are)."""
+    if actions in RETIRED_ACTION_SETS:
+        return f"action set {retired_message(actions, RETIRED_ACTION_SETS[actions])}"
+    return f"unknown action set '{actions}'; choose one of {', '.join(known)}"

@@ -178,24 +178,6 @@ def test_the_action_distance_is_zero_for_the_same_action_and_one_for_stop_agains
     assert names[nearest_forward(ACTION_SETS["fine_stop"], -1.0)] == "left"
 
 
-def test_the_slow_full_turns_settle_at_the_experts_turn_speed_and_keep_the_sets_layout() -> None:
-    from brlcli.autopilot import TURN_KMH
-    from brlcli.sim.gym_env import ACTION_SET_NAMES, ACTION_SETS
-    from brlcli.sim.vehicle import VehicleState, advance
-
-    slow, fine = ACTION_SETS["fine_stop_slow"], ACTION_SETS["fine_stop"]
-    assert len(slow) == len(fine) and ACTION_SET_NAMES["fine_stop_slow"][1:3] == ("right_slow", "left_slow")
-    assert [a.steer for a in slow] == [a.steer for a in fine]  # the same steering, index for index
-    assert [i for i, (a, b) in enumerate(zip(slow, fine, strict=True)) if a != b] == [1, 2]
-    speeds = []
-    for control in (slow[1], fine[1]):
-        state = VehicleState(speed_ms=23.0 / 3.6)
-        for _ in range(600):  # 30 s at 0.05 s
-            advance(state, control, 0.05)
-        speeds.append(state.speed_ms * 3.6)
-    assert speeds[0] == pytest.approx(TURN_KMH, abs=0.3) and speeds[1] == pytest.approx(16.2, abs=0.3)
-
-
 def test_episodes_draw_their_traffic_level(traffic_env: DrivingEnv) -> None:
     levels = {traffic_env.reset(seed=s)[1]["traffic"] for s in range(12)}
     assert levels == {"regular", "dense"}

@@ -423,14 +423,17 @@ def test_a_fine_braking_model_says_it_has_the_stop_primitive(tmp_path: Path) -> 
     train_run(cfg, tmp_path / "fine_stop")
     policy = BRLPolicy("brl", str(tmp_path / "fine_stop" / "model.npz"))
     assert len(policy.actions) == 9 and "fine steering, stop primitive" in policy.setting
-    # the same model's primitives with slow full turns (the same shape): the bench drives and names those
+    # a model of a retired action set (its config.json says so): one line naming the study and the commit
     config_file = tmp_path / "fine_stop" / "config.json"
     config = json.loads(config_file.read_text())
     config["config"]["actions"] = "fine_stop_slow"
     config_file.write_text(json.dumps(config))
-    slow = BRLPolicy("brl", str(tmp_path / "fine_stop" / "model.npz"))
-    assert "fine steering, slow full turns, stop primitive" in slow.setting
-    assert [a.throttle for a in slow.actions[1:3]] == [0.262, 0.262] and slow.actions[4:] == policy.actions[4:]
+    with pytest.raises(BrlInputError, match=r"action set 'fine_stop_slow' was retired .*section 12\.27.*4e10806"):
+        BRLPolicy("brl", str(tmp_path / "fine_stop" / "model.npz"))
+    with pytest.raises(BrlInputError, match="action set 'fine_stop_slow' was retired"):
+        TrainConfig(task="navigation", actions="fine_stop_slow")
+    with pytest.raises(BrlInputError, match="unknown action set 'fine_stop_fast'; choose one of paper, stop"):
+        TrainConfig(task="navigation", actions="fine_stop_fast")
 
 
 def test_a_brake_gate_drives_over_a_shipped_member_set() -> None:

@@ -41,6 +41,7 @@ from brlcli.features import STATE_DIM
 from brlcli.outdir import refuse_existing
 from brlcli.policy import StatePolicy, setting_name
 from brlcli.provenance import atomic_write_bytes, atomic_write_json, provenance
+from brlcli.retired import unknown_action_set
 from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams
 from brlcli.segnet import check_input_source, labeler_for
 from brlcli.sim.camera import CameraConfig
@@ -225,8 +226,7 @@ def load_model(path: str | Path) -> tuple[nn.Sequential, dict[str, Any]]:
         train = json.loads(doc["train"])
         actions = str(train.get("actions", "paper"))
         if actions not in ACTION_SETS:
-            raise BrlInputError(f"deep RL model {path} names action set '{actions}', which this brl does not have "
-                                f"({', '.join(ACTION_SETS)})")
+            raise BrlInputError(f"deep RL model {path}: {unknown_action_set(actions, ACTION_SETS)}")
         if state_dim not in (STATE_DIM, STATE_DIM + len(BRANCH_NAMES)) or n_actions != len(ACTION_SETS[actions]):
             raise BrlInputError(f"deep RL model {path} has state size {state_dim} and {n_actions} actions; brl's "
                                 f"task uses {STATE_DIM} (+{len(BRANCH_NAMES)} for navigation) and action set "

@@ -12,6 +12,7 @@ import numpy as np
 from brlcli.autopilot import Autopilot
 from brlcli.errors import BrlInputError
 from brlcli.features import STATE_DIM, STATE_OPTIONS, agent_state, road_user_in_view
+from brlcli.retired import unknown_action_set
 from brlcli.reward import HazardRewardParams, RewardParams, RouteRewardParams, hazard_terms, reward_terms, route_terms
 from brlcli.sim.camera import CameraConfig
 from brlcli.sim.hazard import hazard_gap_m
@@ -33,29 +34,20 @@ FINE_STEER = (0.15, 0.05)
 brake) the expert restricted to an agent's actions keeps its lane beside oncoming traffic (docs/navigation-study.md)."""
 FINE_ACTIONS = tuple(Control(steer=sign * s, throttle=ACTIONS[1].throttle) for s in FINE_STEER for sign in (1.0, -1.0))
 FINE_NAMES = ("right_0.15", "left_0.15", "right_0.05", "left_0.05")
-SLOW_TURN_THROTTLE = 0.262
-"""Throttle of the slow full turns of the `fine_stop_slow` action set (outside the paper, issue 35): the car settles
-at 12 km/h, the expert's turn speed (`brlcli.autopilot.TURN_KMH`), where the paper's 0.35 settles at 16.2 km/h; at a
-decision every 3 frames one full-steering decision then turns the car by about 6 degrees instead of 9."""
-SLOW_TURNS = tuple(Control(steer=a.steer, throttle=SLOW_TURN_THROTTLE) for a in ACTIONS[1:3])
 ACTION_SETS: dict[str, tuple[Control, ...]] = {"paper": ACTIONS, "stop": (*ACTIONS, STOP),
                                                "fine": (*ACTIONS, *FINE_ACTIONS),
-                                               "fine_stop": (*ACTIONS, *FINE_ACTIONS, STOP),
-                                               "fine_stop_slow": (ACTIONS[0], *SLOW_TURNS, ACTIONS[3], *FINE_ACTIONS,
-                                                                  STOP)}
+                                               "fine_stop": (*ACTIONS, *FINE_ACTIONS, STOP)}
 """Action sets: the paper's four primitives; those and `stop`; those and four finer turns, right / left at
-FINE_STEER; those and `stop`; or that set with its full turns at SLOW_TURN_THROTTLE (all but the first outside the
-paper; the last two differ only in their full turns' throttle, so their models have the same shape)."""
+FINE_STEER; those and `stop` (all but the first outside the paper). Retired sets: `brlcli.retired`."""
 ACTION_SET_NAMES = {"paper": ACTION_NAMES, "stop": (*ACTION_NAMES, "stop"), "fine": (*ACTION_NAMES, *FINE_NAMES),
-                    "fine_stop": (*ACTION_NAMES, *FINE_NAMES, "stop"),
-                    "fine_stop_slow": ("forward", "right_slow", "left_slow", "backward", *FINE_NAMES, "stop")}
+                    "fine_stop": (*ACTION_NAMES, *FINE_NAMES, "stop")}
 
 
 def action_set_traits(actions: str) -> list[str]:
-    """How action set `actions` differs from the paper's four primitives, for settings: any of 'fine steering',
-    'slow full turns' and 'stop primitive', read off the set's primitives."""
+    """How action set `actions` differs from the paper's four primitives, for settings: any of 'fine steering' and
+    'stop primitive', read off the set's primitives."""
     primitives = ACTION_SETS[actions]
-    traits = {"fine steering": FINE_ACTIONS, "slow full turns": SLOW_TURNS, "stop primitive": (STOP,)}
+    traits = {"fine steering": FINE_ACTIONS, "stop primitive": (STOP,)}
     return [name for name, members in traits.items() if any(a in primitives for a in members)]
 
 
@@ -216,7 +208,7 @@ class DrivingEnv(gym.Env):
         """ValueError unless the action set, the traffic levels (a list or tuple), the state option and r_stand >= 0
         are ones this environment knows (issue 35's options, outside the paper)."""
         if actions not in ACTION_SETS:
-            raise ValueError(f"unknown action set '{actions}'; choose one of {', '.join(ACTION_SETS)}")
+            raise ValueError(unknown_action_set(actions, ACTION_SETS))
         if state not in STATE_OPTIONS:
             raise ValueError(f"unknown state option '{state}'; choose one of {', '.join(STATE_OPTIONS)}")
         if not isinstance(traffic, list | tuple) or any(t not in TRAFFIC_LEVELS for t in traffic):
