@@ -64,6 +64,7 @@ RETIRED_ACTION_SETS: dict[str, Retired] = {
 }
 """Retired values of the `actions` key: action sets measured as not helping (`off` unused)."""
 
+
 def retired_message(key: str, knob: Retired) -> str:
     """The one line for a retired key: what it was, where its figures are, the commit that reruns it."""
     return (f"'{key}' was retired in brl 0.2 (measured as not helping: {knob.study}); to rerun it, use the brl of "

@@ -233,8 +233,8 @@ class TrainConfig:
         if self.stop_rule != "any" and (self.learning != "imitation" or STOP not in ACTION_SETS[self.actions]
                                         or self.brake_gate_steps or self.driver_model is not None):
             raise BrlInputError(f"stop_rule={self.stop_rule} (the navigation preset's) needs learning=imitation and an "
-                                "action set with the stop primitive (actions=stop or fine_stop), "
-                                "without a brake gate; add --set stop_rule=any for any other recipe")
+                                "action set with the stop primitive (actions=stop or fine_stop), without a brake "
+                                "gate; add --set stop_rule=any for any other recipe")
 
     def _check_learning(self) -> None:
         """Imitation's options: a navigation model of its own, none of TD learning's hooks."""

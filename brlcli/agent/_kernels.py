@@ -341,9 +341,9 @@ def decide(ll: np.ndarray, dist: np.ndarray, row_t: int, row_next: int, q: np.nd
 
 @_jit
 def absorb(m: int, a_t: int, s_t: np.ndarray, td: float, weight: float, alpha: float, step_size: int,
-            q: np.ndarray, visits: np.ndarray, mean: np.ndarray, kappa: np.ndarray, nu: np.ndarray,
-            scatter: np.ndarray, chol: np.ndarray, linv: np.ndarray, tpar: np.ndarray, cache_states: np.ndarray,
-            cache_ll: np.ndarray, cache_dist: np.ndarray) -> None:
+           q: np.ndarray, visits: np.ndarray, mean: np.ndarray, kappa: np.ndarray, nu: np.ndarray,
+           scatter: np.ndarray, chol: np.ndarray, linv: np.ndarray, tpar: np.ndarray, cache_states: np.ndarray,
+           cache_ll: np.ndarray, cache_dist: np.ndarray) -> None:
     """The Q update (eq. 8) with weight w and the step size of code `step_size`, then the fractional NIW update of
     component m and its cached L^-1, Student-t constants and cache entries (`BayesianAgent._update`)."""
     dim = mean.shape[1]
@@ -407,7 +407,7 @@ def learn_every_action(row_t: int, rewards: np.ndarray, n: int, alpha: float, ta
                                          reference_code)
         if d_t < rho or td > t_l:
             absorb(m_t, a_t, s_t, td, weight, alpha, step_size, q, visits, mean, kappa, nu, scatter, chol, linv,
-                    tpar, cache_states, cache_ll, cache_dist)
+                   tpar, cache_states, cache_ll, cache_dist)
         elif n < max_components:
             m = n
             create(m, s_t, scalars[9], scalars[10], q, visits, mean, kappa, nu, scatter, chol, linv, tpar, cache_states,
@@ -420,7 +420,7 @@ def learn_every_action(row_t: int, rewards: np.ndarray, n: int, alpha: float, ta
                 q[a_t, m] = scalars[11]
         elif merge:
             absorb(m_t, a_t, s_t, td, weight, alpha, step_size, q, visits, mean, kappa, nu, scatter, chol, linv,
-                    tpar, cache_states, cache_ll, cache_dist)
+                   tpar, cache_states, cache_ll, cache_dist)
         alpha += scalars[3] * (scalars[4] - alpha)
         tau += scalars[5] * (scalars[6] - tau)
         rho += scalars[7] * (scalars[8] - rho)

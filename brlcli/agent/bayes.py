@@ -31,6 +31,7 @@ are always seen.
 from __future__ import annotations
 
 import bisect
+import functools
 import json
 import math
 import os
@@ -179,6 +180,17 @@ def _validated_state(state: Any, dim: int, what: str) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------------
 # The agent
 # ----------------------------------------------------------------------------------------------------------
+
+@functools.lru_cache(maxsize=16)
+def _kernel_constants(p: BRLParams) -> tuple[np.ndarray, np.ndarray]:
+    """The parameters as `_kernels.learn_every_action` takes them (scalars, codes), built once per parameter set."""
+    scalars = np.array([p.gamma, p.T_l, p.T_u, p.alpha_rate, p.alpha_final, p.tau_rate, p.tau_final, p.rho_rate,
+                        p.rho_final, p.init_scatter, p.init_q, p.new_q_taken])
+    codes = np.array([p.variant != "paper", _kernels.STEP_SIZE_CODES[p.step_size], p.max_components,
+                      p.new_q == "nearest", p.at_capacity == "merge"], dtype=np.int64)
+    scalars.flags.writeable = codes.flags.writeable = False
+    return scalars, codes
+
 
 class BayesianAgent:
     """Mixture of NIW components with a Q column each; `learn` is Algorithm 1 of the paper."""
@@ -484,10 +496,7 @@ class BayesianAgent:
             self._allocate(min(2 * self._capacity(), p.max_components))  # this clears the likelihood cache
             checked = self._checked(state, "state")
         row_t = self._cached_row(*checked)
-        scalars = np.array([p.gamma, p.T_l, p.T_u, p.alpha_rate, p.alpha_final, p.tau_rate, p.tau_final, p.rho_rate,
-                            p.rho_final, p.init_scatter, p.init_q, p.new_q_taken])
-        codes = np.array([p.variant != "paper", _kernels.STEP_SIZE_CODES[p.step_size], p.max_components,
-                          p.new_q == "nearest", p.at_capacity == "merge"], dtype=np.int64)
+        scalars, codes = _kernel_constants(p)
         n, alpha, tau, rho = _kernels.learn_every_action(
             row_t, rewards, self._n, self._alpha, self._tau, self._rho, scalars, codes, self._q, self._visits,
             self._mean, self._kappa, self._nu, self._scatter, self._chol, self._chol_inv_packed, self._t_params,
