@@ -243,6 +243,31 @@ def test_nocrash_success_posteriors_and_outcomes(tmp_path: Path) -> None:
     assert "NoCrash benchmark" in (out / "report.md").read_text()
 
 
+def test_nocrash_agents_on_different_episode_sets_are_compared_on_the_common_ones(tmp_path: Path) -> None:
+    def ep(policy: str, n: int, success: bool, crashed: bool = False) -> dict:
+        return {"suite": "nocrash", "condition": "training", "task": "dense", "town": "town01", "weather": 1,
+                "index": n, "id": f"nocrash/town01/training/dense/w01/{n:02d}", "policy": policy,
+                "setting": policy, "seed": n, "success": success, "km": 0.4, "steps": 100, "collided": crashed,
+                "crashed": crashed}
+
+    full = [ep("full", n, n % 2 == 0, crashed=n % 2 == 1) for n in range(10)]  # the whole suite: 5 of 10
+    subset = [ep("subset", n, True) for n in (0, 1, 2)]  # a fixed subset: its ids are among the full run's
+    out = _report_of(tmp_path, "nocrash", full + subset)
+    whole = {r["Agent"]: r for r in read_csv(out / "tables" / "nocrash_success.csv") if r["Traffic"] == "Dense"}
+    assert float(whole["full (full)"]["Training"]) == 50.0
+    common = {r["Agent"]: r for r in read_csv(out / "tables" / "nocrash_success_common.csv")
+              if r["Traffic"] == "Dense"}
+    assert float(common["full (full)"]["Training"]) == pytest.approx(200 / 3, abs=1e-3)  # episodes 0, 1, 2 only
+    assert float(common["subset (subset)"]["Training"]) == 100.0
+    ends = {r["Agent"]: r for r in read_csv(out / "tables" / "nocrash_outcomes_common.csv")}
+    assert ends["full (full)"]["Episodes"] == "3" and float(ends["full (full)"]["Collision [%]"]) == \
+        pytest.approx(100 / 3, abs=1e-3)
+    assert "on the 3 episodes every agent drove" in (out / "report.md").read_text()
+    (tmp_path / "same").mkdir()
+    same = _report_of(tmp_path / "same", "nocrash", full + [ep("other", n, False) for n in range(10)])
+    assert not (same / "tables" / "nocrash_success_common.csv").exists()  # one episode set: no extra tables
+
+
 def test_a_model_set_gets_a_mean_row_with_std_worst_and_best(tmp_path: Path) -> None:
     def ep(policy: str, n: int, success: bool, suite: str = "corl2017", task: str = "one_curve") -> dict:
         return {"suite": suite, "condition": "training", "task": task, "town": "town01", "weather": 1, "index": n,

@@ -180,8 +180,16 @@ def _nocrash_section(episodes: list[dict[str, Any]], summary: list[dict[str, Any
     text = (f"{len(episodes)} episodes of {len(agents)} agent{'s' if len(agents) != 1 else ''} (Codevilla et al., "
             "ICCV 2019: CoRL2017's navigation routes with three traffic levels; a collision ends the episode). "
             "Definitions in docs/benchmarks.md.")
-    section = tb.Section("NoCrash benchmark", text, [tb.nocrash_success_table(episodes),
-                                                     tb.nocrash_outcome_table(episodes)])
+    tables = [tb.nocrash_success_table(episodes), tb.nocrash_outcome_table(episodes)]
+    common = tb.common_episodes(episodes)
+    if common:
+        n_common = len({ep["id"] for ep in common})
+        text += (f" The agents drove different episode sets (a full suite beside subsets): the last two tables "
+                 f"compare them on the {n_common} episodes every agent drove, episode for episode.")
+        tables += [tb.nocrash_success_table(common, common=True), tb.nocrash_outcome_table(common, common=True)]
+    elif common is not None:
+        text += " The agents drove different episode sets with none in common: compare their rows with care."
+    section = tb.Section("NoCrash benchmark", text, tables)
     _agent_summaries("nocrash", episodes, agents, summary)
     return section
 

@@ -570,10 +570,30 @@ NOCRASH_TASKS: tuple[tuple[str, str], ...] = (("empty", "Empty"), ("regular", "R
 """NoCrash traffic levels (result key, row title)."""
 
 
-def nocrash_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
-    """% success per traffic level x condition per agent, pooled over weathers, with its Beta posterior."""
+def common_episodes(episodes: Sequence[dict[str, Any]]) -> list[dict[str, Any]] | None:
+    """The episodes whose identifier every agent drove, when the agents drove different episode sets (a full run
+    beside fixed subsets, `brl bench --episodes`); None when every agent drove the same episodes."""
+    ids: dict[tuple[str, str], set[str]] = defaultdict(set)
+    for ep in episodes:
+        ids[(str(ep["setting"]), str(ep["policy"]))].add(str(ep["id"]))
+    sets = list(ids.values())
+    if len(sets) < 2 or all(s == sets[0] for s in sets[1:]):
+        return None
+    common = set.intersection(*sets)
+    return [ep for ep in episodes if str(ep["id"]) in common]
+
+
+COMMON_SUFFIX = ("_common", ", on the episodes every agent drove")
+"""Key and title suffix of a table restricted to `common_episodes`."""
+
+
+def nocrash_success_table(episodes: Sequence[dict[str, Any]], common: bool = False) -> Table:
+    """% success per traffic level x condition per agent, pooled over weathers, with its Beta posterior; `common`:
+    the episodes are `common_episodes` (the table's key and title say so)."""
     cond_keys = [c for c, _ in pub.CORL_CONDITIONS]
-    t = Table("nocrash_success", "NoCrash: % success per traffic level and condition (Beta posterior, 95 %)",
+    key_end, title_end = COMMON_SUFFIX if common else ("", "")
+    t = Table(f"nocrash_success{key_end}",
+              f"NoCrash: % success per traffic level and condition (Beta posterior, 95 %){title_end}",
               ["Traffic", "Agent", *(title for _, title in pub.CORL_CONDITIONS)], label_columns=2)
     groups: dict[tuple[str, str, str, str], list[dict[str, Any]]] = defaultdict(list)
     for ep in episodes:
@@ -607,9 +627,11 @@ def nocrash_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
     return t
 
 
-def nocrash_outcome_table(episodes: Sequence[dict[str, Any]]) -> Table:
-    """Per agent and traffic level: the shares of episodes that succeeded, crashed and timed out."""
-    t = Table("nocrash_outcomes", "NoCrash: how episodes ended, pooled over conditions",
+def nocrash_outcome_table(episodes: Sequence[dict[str, Any]], common: bool = False) -> Table:
+    """Per agent and traffic level: the shares of episodes that succeeded, crashed and timed out (`common`: as in
+    `nocrash_success_table`)."""
+    key_end, title_end = COMMON_SUFFIX if common else ("", "")
+    t = Table(f"nocrash_outcomes{key_end}", f"NoCrash: how episodes ended, pooled over conditions{title_end}",
               ["Traffic", "Agent", "Episodes", "Success [%]", "Collision [%]", "Timeout [%]"], label_columns=2)
     agents = corl_agents(episodes)
     for task, task_title in NOCRASH_TASKS:
