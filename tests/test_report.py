@@ -6,6 +6,7 @@ Results directories are synthetic (bench.json + results.jsonl + tiny frames file
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import json
 import struct
@@ -474,6 +475,31 @@ def test_an_archived_results_directory_reports_as_the_original(tmp_path: Path) -
     (archived / "results.jsonl.gz").write_bytes(b"not gzip")
     with pytest.raises(BrlInputError, match="not readable"):
         build_report([archived], out=tmp_path / "bad", formats="csv")
+
+
+def test_an_archive_can_rename_a_policy_into_its_model_set(tmp_path: Path) -> None:
+    eps = model_set("TGDG", models=2, episodes=3)
+    names = sorted({e["policy"] for e in eps})
+    res = write_results(tmp_path / "r", eps)
+    script = Path(__file__).resolve().parents[1] / "scripts" / "archive_bench.py"
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+
+    assert run("--rename", f"{names[0]}=set/one", str(tmp_path / "a"), str(res)).returncode == 0
+    archived = tmp_path / "a" / "r"
+    rows = [json.loads(line) for line in gzip.decompress((archived / "results.jsonl.gz").read_bytes()).splitlines()]
+    assert {r["policy"] for r in rows} == {"set/one", names[1]}
+    renamed = [r for r in rows if r["policy"] == "set/one"]
+    assert len(renamed) == 3 and all(r["frames_file"].startswith("frames/set_one/") for r in renamed)
+    originals = [json.loads(line) for line in (res / "results.jsonl").read_text().splitlines()]
+    assert [{k: v for k, v in r.items() if k not in ("policy", "frames_file")} for r in rows] == \
+        [{k: v for k, v in r.items() if k not in ("policy", "frames_file")} for r in originals]
+    policies = json.loads((archived / "bench.json").read_text())["config"]["policies"]
+    assert [p["name"] for p in policies] == ["set/one", names[1]]
+    bad = run("--rename", "nobody=set/x", str(tmp_path / "b"), str(res))
+    assert bad.returncode != 0 and "no policy named 'nobody'" in bad.stderr and not (tmp_path / "b").exists()
+    assert run("--rename", "no-equals-sign", str(tmp_path / "c"), str(res)).returncode != 0
 
 
 def tb_has_booktabs(path: Path) -> bool:
