@@ -25,6 +25,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from brlcli.bench.runner import safe_name
+
 
 def _staging_dir(parent: Path, name: str) -> Path:
     """A fresh, readable temporary directory in `parent`, renamed into place once complete."""
@@ -52,14 +54,9 @@ def _renamed(bench: bytes, results: bytes, old: str, new: str) -> tuple[bytes, b
         if row.get("policy") == old:
             row["policy"] = new
             if "frames_file" in row:
-                row["frames_file"] = f"frames/{_safe(new)}/{row['frames_file'].split('/', 2)[2]}"
+                row["frames_file"] = f"frames/{safe_name(new)}/{row['frames_file'].split('/', 2)[2]}"
         lines.append(json.dumps(row, sort_keys=True) + "\n")
     return (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode(), "".join(lines).encode()
-
-
-def _safe(text: str) -> str:
-    """A policy name as `brl bench` writes it in a frames path."""
-    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in text)
 
 
 def archive(src: Path, dest_root: Path, rename: tuple[str, str] | None = None) -> Path:

@@ -133,7 +133,7 @@ class _Worker:
             self.policies[p_idx] = build_spec(self.policy_specs[p_idx])
         policy = self.policies[p_idx]
         result, log = run_episode(world_for(self.worlds, spec, policy), spec, policy, self.seed)
-        result["frames_file"] = f"frames/{_safe(result['policy'])}/{_safe(spec.id)}.npz"
+        result["frames_file"] = f"frames/{safe_name(result['policy'])}/{safe_name(spec.id)}.npz"
         return result, npz_bytes(log, compress=True)
 
     def close(self) -> None:
@@ -147,7 +147,8 @@ def _bench_task(worker: _Worker, item: tuple[int, dict]) -> tuple[dict, bytes]:
     return worker.run(item)
 
 
-def _safe(text: str) -> str:
+def safe_name(text: str) -> str:
+    """A policy name or episode id as a file name (what frames/ paths use)."""
     return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in text)
 
 
