@@ -295,6 +295,25 @@ def test_a_model_set_gets_a_mean_row_with_std_worst_and_best(tmp_path: Path) -> 
     assert [a for a in nc_rows if "mean of" in a] == [label]  # one set row, none for the lone policy
 
 
+def test_a_long_setting_label_is_a_key_in_the_tables_and_whole_in_a_note_and_the_csv(tmp_path: Path) -> None:
+    long = "TGDG (action-averaging-committee, navigation, fine steering, stop primitive, imitation)"
+    eps = [{"suite": "nocrash", "condition": "training", "task": "dense", "town": "town01", "weather": 1,
+            "index": n, "id": f"nocrash/town01/training/dense/w01/{n:02d}", "policy": policy, "setting": setting,
+            "seed": n, "success": n % 2 == 0, "km": 0.5, "steps": 100, "collided": False, "crashed": n % 2 == 1,
+            "either_steps": 0, "infractions": {"offroad": 0, "otherlane": 0, "collision_other": 0,
+                                               "collision_vehicles": 0, "collision_pedestrians": 0}}
+           for policy, setting in (("nav/seed_0", long), ("nav/seed_1", long), ("mp", "MP-DG"))
+           for n in range(4)]
+    out = _report_of(tmp_path, "nocrash", eps)
+    md = (out / "report.md").read_text()
+    assert "| Dense | nav/seed_0 (TGDG [a]) |" in md and "| Dense | nav: mean of 2 models (TGDG [a]) |" in md
+    assert "| Dense | mp (MP-DG) |" in md  # a short label stays whole
+    assert f"- Settings: [a] {long}." in md and f"nav/seed_0 ({long})" not in md
+    agents = {r["Agent"] for r in read_csv(out / "tables" / "nocrash_success.csv")}
+    assert agents == {f"nav/seed_0 ({long})", f"nav/seed_1 ({long})", f"nav: mean of 2 models ({long})",
+                      "mp (MP-DG)"}
+
+
 # --------------------------------------------------------------------------------------------------------------
 # Merging, missing settings, determinism
 

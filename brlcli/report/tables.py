@@ -352,6 +352,47 @@ def _agent_label(policy: str, setting: str) -> str:
     return f"{policy} ({setting})"
 
 
+SHORT_SETTING_CHARS = 40
+"""A setting label longer than this is shown in a table as its paper setting and a key, spelled out in a note."""
+
+
+def _add_note(t: Table, note: str | None) -> None:
+    if note:
+        t.notes.append(note)
+
+
+class AgentLabels:
+    """The agent cells of one table. A long setting label ('TGDG (action-averaging-committee, navigation, ...)')
+    shows as its paper setting and a key ('TGDG [a]'), each key spelled out once in the table's notes; the CSV
+    keeps the full label."""
+
+    def __init__(self) -> None:
+        self._keys: dict[str, str] = {}
+
+    def _short(self, setting: str) -> str:
+        if len(setting) <= SHORT_SETTING_CHARS:
+            return setting
+        if setting not in self._keys:
+            i = len(self._keys)
+            self._keys[setting] = chr(ord("a") + i) if i < 26 else f"s{i + 1}"
+        return f"{base_setting(setting)} [{self._keys[setting]}]"
+
+    def agent(self, policy: str, setting: str) -> Cell:
+        """One policy's cell: 'seed_0 (TGDG)', or 'brl_nav/seed_0 (TGDG [a])' for a long setting."""
+        return Cell(f"{policy} ({self._short(setting)})", _agent_label(policy, setting))
+
+    def model_set(self, policies: Sequence[str], setting: str) -> Cell:
+        """A model set's mean row: 'brl_nav: mean of 9 models (TGDG [a])'."""
+        name = f"{policies[0].split('/')[0]}: mean of {len(policies)} models"
+        return Cell(f"{name} ({self._short(setting)})", f"{name} ({setting})")
+
+    def note(self) -> str | None:
+        """The keys spelled out, or None when every setting is shown whole."""
+        if not self._keys:
+            return None
+        return "Settings: " + "; ".join(f"[{k}] {s}" for s, k in self._keys.items()) + "."
+
+
 def corl_agents(episodes: Sequence[dict[str, Any]]) -> list[tuple[str, str]]:
     """(setting, policy) pairs, the paper's settings first."""
     pairs = {(str(ep["setting"]), str(ep["policy"])) for ep in episodes}
@@ -374,10 +415,6 @@ def model_set_cell(rates: Sequence[float]) -> Cell:
     v = 100.0 * np.asarray(rates, dtype=float)
     std = float(np.std(v, ddof=1)) if len(v) > 1 else 0.0
     return Cell(f"{v.mean():.1f} ± {std:.1f} [{v.min():.1f}, {v.max():.1f}]", f"{v.mean():.4f}")
-
-
-def _model_set_label(policies: Sequence[str], setting: str) -> str:
-    return f"{policies[0].split('/')[0]}: mean of {len(policies)} models ({setting})"
 
 
 def pooled_success(episodes: Sequence[dict[str, Any]]) -> float:
@@ -410,6 +447,7 @@ def corl_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
         groups[(str(ep["setting"]), str(ep["policy"]), str(ep["task"]), str(ep["condition"]))].append(ep)
     agents = corl_agents(episodes)
     sets = model_set_ends(agents)
+    labels = AgentLabels()
     empty = 0
     for task, task_title in pub.CORL_TASKS:
         t.group()
@@ -423,10 +461,10 @@ def corl_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
                 else:
                     empty += 1
                     cells.append(EMPTY)
-            t.add([Cell.of(task_title), Cell.of(_agent_label(policy, setting)), Cell.of("ours"), *cells])
+            t.add([Cell.of(task_title), labels.agent(policy, setting), Cell.of("ours"), *cells])
             if (setting, policy) in sets:
                 members = sets[(setting, policy)]
-                t.add([Cell.of(task_title), Cell.of(_model_set_label(members, setting)), Cell.of("ours"),
+                t.add([Cell.of(task_title), labels.model_set(members, setting), Cell.of("ours"),
                        *_model_set_cells(groups, setting, members, task, cond_keys, success_rate_over_weathers)])
         for agent in pub.CARLA_AGENTS:
             t.add([Cell.of(task_title), Cell.of(agent), Cell.of("published"),
@@ -441,6 +479,7 @@ def corl_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
     ]
     if sets:
         t.notes.append(MODEL_SET_NOTE)
+    _add_note(t, labels.note())
     if empty:
         t.notes.append(f"{DASH}: no episodes of ours in {empty} agent x task x condition cells (a subset of the suite "
                        "was run).")
@@ -460,11 +499,12 @@ def corl_km_table(episodes: Sequence[dict[str, Any]], suite_size: int | None = N
     for ep in episodes:
         groups[(str(ep["setting"]), str(ep["policy"]), str(ep["condition"]))].append(ep)
     agents = corl_agents(episodes)
+    labels = AgentLabels()
     pooled = {(s, p, c): km_between_infractions(groups[(s, p, c)]) for s, p in agents for c in cond_keys
               if groups.get((s, p, c))}
     t.group()
     for setting, policy in agents:
-        t.add([Cell.of("km driven"), Cell.of(_agent_label(policy, setting)), Cell.of("ours"),
+        t.add([Cell.of("km driven"), labels.agent(policy, setting), Cell.of("ours"),
                *(num(pooled[(setting, policy, c)][INFRACTION_TYPES[0]].km, 2) if (setting, policy, c) in pooled
                  else EMPTY for c in cond_keys)])
     for kind in INFRACTION_TYPES:
@@ -478,7 +518,7 @@ def corl_km_table(episodes: Sequence[dict[str, Any]], suite_size: int | None = N
                     continue
                 k = pooled[(setting, policy, c)][kind]
                 cells.append(Cell(k.label(2), f">{k.km:.6f}" if k.more_than else f"{k.value:.6f}"))
-            t.add([Cell.of(title), Cell.of(_agent_label(policy, setting)), Cell.of("ours"), *cells])
+            t.add([Cell.of(title), labels.agent(policy, setting), Cell.of("ours"), *cells])
         for i, agent in enumerate(pub.PAPER_TOWN02_AGENTS):
             cells = [num(pub.PAPER_TOWN02_KM[kind][c][i], 2, 2) if c in pub.PAPER_TOWN02_KM[kind] else EMPTY
                      for c in cond_keys]
@@ -497,6 +537,7 @@ def corl_km_table(episodes: Sequence[dict[str, Any]], suite_size: int | None = N
                        f"condition); ours are for {subset} (a subset of it), so the km driven are not comparable in "
                        "absolute terms. The km between infractions (per-km rates) are, with the wider uncertainty of "
                        "fewer km ('> X' bounds are weaker).")
+    _add_note(t, labels.note())
     return t
 
 
@@ -600,6 +641,7 @@ def nocrash_success_table(episodes: Sequence[dict[str, Any]], common: bool = Fal
         groups[(str(ep["setting"]), str(ep["policy"]), str(ep["task"]), str(ep["condition"]))].append(ep)
     agents = corl_agents(episodes)
     sets = model_set_ends(agents)
+    labels = AgentLabels()
     for task, task_title in NOCRASH_TASKS:
         t.group()
         for setting, policy in agents:
@@ -613,10 +655,10 @@ def nocrash_success_table(episodes: Sequence[dict[str, Any]], common: bool = Fal
                 s = posterior_summary(ok, len(eps) - ok)
                 cells.append(Cell(f"{100.0 * ok / len(eps):.1f} [{100.0 * s['lo']:.1f}, {100.0 * s['hi']:.1f}] "
                                   f"(n={len(eps)})", f"{100.0 * ok / len(eps):.4f}"))
-            t.add([Cell.of(task_title), Cell.of(_agent_label(policy, setting)), *cells])
+            t.add([Cell.of(task_title), labels.agent(policy, setting), *cells])
             if (setting, policy) in sets:
                 members = sets[(setting, policy)]
-                t.add([Cell.of(task_title), Cell.of(_model_set_label(members, setting)),
+                t.add([Cell.of(task_title), labels.model_set(members, setting),
                        *_model_set_cells(groups, setting, members, task, cond_keys, pooled_success)])
     t.notes = ["% success: episodes that reached the goal within 2 m before the timeout (the route at 5 km/h + 20 s) "
                "without a collision, pooled over the weathers of the condition; a collision above CoRL2017's "
@@ -624,6 +666,7 @@ def nocrash_success_table(episodes: Sequence[dict[str, Any]], common: bool = Fal
                "the Beta posterior with the Jeffreys prior; n = episodes. " + DASH + ": not run."]
     if sets:
         t.notes.append(MODEL_SET_NOTE)
+    _add_note(t, labels.note())
     return t
 
 
@@ -634,6 +677,7 @@ def nocrash_outcome_table(episodes: Sequence[dict[str, Any]], common: bool = Fal
     t = Table(f"nocrash_outcomes{key_end}", f"NoCrash: how episodes ended, pooled over conditions{title_end}",
               ["Traffic", "Agent", "Episodes", "Success [%]", "Collision [%]", "Timeout [%]"], label_columns=2)
     agents = corl_agents(episodes)
+    labels = AgentLabels()
     for task, task_title in NOCRASH_TASKS:
         t.group()
         for setting, policy in agents:
@@ -644,7 +688,8 @@ def nocrash_outcome_table(episodes: Sequence[dict[str, Any]], common: bool = Fal
             n = len(eps)
             ok = sum(bool(ep["success"]) for ep in eps)
             crashed = sum(bool(ep.get("crashed", False)) for ep in eps)
-            t.add([Cell.of(task_title), Cell.of(_agent_label(policy, setting)), count(n), pct(ok / n),
+            t.add([Cell.of(task_title), labels.agent(policy, setting), count(n), pct(ok / n),
                    pct(crashed / n), pct((n - ok - crashed) / n)])
     t.notes = ["Collision: the episode ended at a collision; timeout: it neither reached the goal nor collided."]
+    _add_note(t, labels.note())
     return t
