@@ -22,10 +22,15 @@ import argparse
 import gzip
 import json
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
 from brlcli.bench.runner import safe_name
+
+
+class ArchiveInputError(Exception):
+    """Bad input: one line saying what is wrong, exit code 2, nothing written."""
 
 
 def _staging_dir(parent: Path, name: str) -> Path:
@@ -41,10 +46,10 @@ def _renamed(bench: bytes, results: bytes, old: str, new: str) -> tuple[bytes, b
     meta = json.loads(bench)
     policies = meta["config"]["policies"]
     if old not in [p["name"] for p in policies]:
-        raise SystemExit(f"no policy named '{old}' in this bench (its policies: "
+        raise ArchiveInputError(f"no policy named '{old}' in this bench (its policies: "
                          f"{', '.join(p['name'] for p in policies)})")
     if new in [p["name"] for p in policies]:
-        raise SystemExit(f"a policy named '{new}' is already in this bench")
+        raise ArchiveInputError(f"a policy named '{new}' is already in this bench")
     for p in policies:
         if p["name"] == old:
             p["name"] = new
@@ -64,7 +69,7 @@ def archive(src: Path, dest_root: Path, rename: tuple[str, str] | None = None) -
     NEW, when `rename` is given); the archive's path."""
     for name in ("bench.json", "results.jsonl"):
         if not (src / name).is_file():
-            raise SystemExit(f"{src} is not a brl bench results directory (no {name})")
+            raise ArchiveInputError(f"{src} is not a brl bench results directory (no {name})")
     bench, results = (src / "bench.json").read_bytes(), (src / "results.jsonl").read_bytes()
     if rename is not None:
         bench, results = _renamed(bench, results, *rename)
@@ -84,9 +89,9 @@ def restore(archived: Path, out: Path) -> Path:
     """An archive back to a results directory (bench.json, results.jsonl) at `out`, which must not exist: `brl bench
     --resume --out OUT` with the same options then runs the episodes it lacks."""
     if not (archived / "results.jsonl.gz").is_file() or not (archived / "bench.json").is_file():
-        raise SystemExit(f"{archived} is not an archived results directory (bench.json, results.jsonl.gz)")
+        raise ArchiveInputError(f"{archived} is not an archived results directory (bench.json, results.jsonl.gz)")
     if out.exists():
-        raise SystemExit(f"{out} exists; restore into a new directory")
+        raise ArchiveInputError(f"{out} exists; restore into a new directory")
     tmp = _staging_dir(out.parent, out.name)
     shutil.copyfile(archived / "bench.json", tmp / "bench.json")
     (tmp / "results.jsonl").write_bytes(gzip.decompress((archived / "results.jsonl.gz").read_bytes()))
@@ -95,7 +100,15 @@ def restore(archived: Path, out: Path) -> Path:
 
 
 def main() -> None:
-    """Archive each SRC under DEST, or restore one archive."""
+    """Archive each SRC under DEST, or restore one archive; bad input is one line on stderr and exit code 2."""
+    try:
+        _run()
+    except ArchiveInputError as e:
+        print(f"archive_bench: error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def _run() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--restore", action="store_true", help="restore ARCHIVE (the second argument) into OUT")
     ap.add_argument("--rename", metavar="OLD=NEW", help="archive with policy OLD named NEW (one SRC)")
@@ -104,16 +117,16 @@ def main() -> None:
     args = ap.parse_args()
     if args.restore:
         if len(args.src) != 1:
-            raise SystemExit("--restore takes one archive")
+            raise ArchiveInputError("--restore takes one archive")
         print(restore(args.src[0], args.dest))
         return
     rename = None
     if args.rename is not None:
         old, sep, new = args.rename.partition("=")
         if not sep or not old or not new:
-            raise SystemExit(f"--rename takes OLD=NEW, got '{args.rename}'")
+            raise ArchiveInputError(f"--rename takes OLD=NEW, got '{args.rename}'")
         if len(args.src) != 1:
-            raise SystemExit("--rename takes one SRC")
+            raise ArchiveInputError("--rename takes one SRC")
         rename = (old, new)
     for src in args.src:
         print(archive(src, args.dest, rename))
