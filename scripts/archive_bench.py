@@ -47,7 +47,7 @@ def _renamed(bench: bytes, results: bytes, old: str, new: str) -> tuple[bytes, b
     policies = meta["config"]["policies"]
     if old not in [p["name"] for p in policies]:
         raise ArchiveInputError(f"no policy named '{old}' in this bench (its policies: "
-                         f"{', '.join(p['name'] for p in policies)})")
+                                f"{', '.join(p['name'] for p in policies)})")
     if new in [p["name"] for p in policies]:
         raise ArchiveInputError(f"a policy named '{new}' is already in this bench")
     for p in policies:
@@ -64,12 +64,17 @@ def _renamed(bench: bytes, results: bytes, old: str, new: str) -> tuple[bytes, b
     return (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode(), "".join(lines).encode()
 
 
-def archive(src: Path, dest_root: Path, rename: tuple[str, str] | None = None) -> Path:
-    """Copy bench.json and a gzipped results.jsonl of `src` to dest_root/<src.name> (with one policy renamed, OLD ->
-    NEW, when `rename` is given); the archive's path."""
+def check_source(src: Path) -> None:
+    """Refuse `src` unless it is a `brl bench` results directory."""
     for name in ("bench.json", "results.jsonl"):
         if not (src / name).is_file():
             raise ArchiveInputError(f"{src} is not a brl bench results directory (no {name})")
+
+
+def archive(src: Path, dest_root: Path, rename: tuple[str, str] | None = None) -> Path:
+    """Copy bench.json and a gzipped results.jsonl of `src` to dest_root/<src.name> (with one policy renamed, OLD ->
+    NEW, when `rename` is given); the archive's path."""
+    check_source(src)
     bench, results = (src / "bench.json").read_bytes(), (src / "results.jsonl").read_bytes()
     if rename is not None:
         bench, results = _renamed(bench, results, *rename)
@@ -128,6 +133,8 @@ def _run() -> None:
         if len(args.src) != 1:
             raise ArchiveInputError("--rename takes one SRC")
         rename = (old, new)
+    for src in args.src:  # every source checked before any is archived
+        check_source(src)
     for src in args.src:
         print(archive(src, args.dest, rename))
 

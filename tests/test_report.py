@@ -520,6 +520,9 @@ def test_an_archive_can_rename_a_policy_into_its_model_set(tmp_path: Path) -> No
     assert bad.returncode == 2 and not (tmp_path / "b").exists()
     assert bad.stderr.startswith("archive_bench: error: no policy named 'nobody'") and "Traceback" not in bad.stderr
     assert run("--rename", "no-equals-sign", str(tmp_path / "c"), str(res)).returncode == 2
+    two = run(str(tmp_path / "d"), str(res), str(tmp_path / "missing"))  # one bad source: nothing archived
+    assert two.returncode == 2 and "missing is not a brl bench results directory" in two.stderr
+    assert not (tmp_path / "d").exists()
 
 
 def tb_has_booktabs(path: Path) -> bool:

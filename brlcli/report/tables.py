@@ -356,11 +356,6 @@ SHORT_SETTING_CHARS = 40
 """A setting label longer than this is shown in a table as its paper setting and a key, spelled out in a note."""
 
 
-def _add_note(t: Table, note: str | None) -> None:
-    if note:
-        t.notes.append(note)
-
-
 class AgentLabels:
     """The agent cells of one table. A long setting label ('TGDG (action-averaging-committee, navigation, ...)')
     shows as its paper setting and a key ('TGDG [a]'), each key spelled out once in the table's notes; the CSV
@@ -386,11 +381,11 @@ class AgentLabels:
         name = f"{policies[0].split('/')[0]}: mean of {len(policies)} models"
         return Cell(f"{name} ({self._short(setting)})", f"{name} ({setting})")
 
-    def note(self) -> str | None:
-        """The keys spelled out, or None when every setting is shown whole."""
+    def notes(self) -> list[str]:
+        """The keys spelled out (a note), or none when every setting is shown whole."""
         if not self._keys:
-            return None
-        return "Settings: " + "; ".join(f"[{k}] {s}" for s, k in self._keys.items()) + "."
+            return []
+        return ["Settings: " + "; ".join(f"[{k}] {s}" for s, k in self._keys.items()) + "."]
 
 
 def corl_agents(episodes: Sequence[dict[str, Any]]) -> list[tuple[str, str]]:
@@ -479,7 +474,7 @@ def corl_success_table(episodes: Sequence[dict[str, Any]]) -> Table:
     ]
     if sets:
         t.notes.append(MODEL_SET_NOTE)
-    _add_note(t, labels.note())
+    t.notes.extend(labels.notes())
     if empty:
         t.notes.append(f"{DASH}: no episodes of ours in {empty} agent x task x condition cells (a subset of the suite "
                        "was run).")
@@ -537,7 +532,7 @@ def corl_km_table(episodes: Sequence[dict[str, Any]], suite_size: int | None = N
                        f"condition); ours are for {subset} (a subset of it), so the km driven are not comparable in "
                        "absolute terms. The km between infractions (per-km rates) are, with the wider uncertainty of "
                        "fewer km ('> X' bounds are weaker).")
-    _add_note(t, labels.note())
+    t.notes.extend(labels.notes())
     return t
 
 
@@ -666,7 +661,7 @@ def nocrash_success_table(episodes: Sequence[dict[str, Any]], common: bool = Fal
                "the Beta posterior with the Jeffreys prior; n = episodes. " + DASH + ": not run."]
     if sets:
         t.notes.append(MODEL_SET_NOTE)
-    _add_note(t, labels.note())
+    t.notes.extend(labels.notes())
     return t
 
 
@@ -691,5 +686,5 @@ def nocrash_outcome_table(episodes: Sequence[dict[str, Any]], common: bool = Fal
             t.add([Cell.of(task_title), labels.agent(policy, setting), count(n), pct(ok / n),
                    pct(crashed / n), pct((n - ok - crashed) / n)])
     t.notes = ["Collision: the episode ended at a collision; timeout: it neither reached the goal nor collided."]
-    _add_note(t, labels.note())
+    t.notes.extend(labels.notes())
     return t
