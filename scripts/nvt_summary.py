@@ -3,41 +3,70 @@
     python scripts/nvt_summary.py runs/s38/nvt_fine_ghost [more bench directories]
     python scripts/nvt_summary.py --seeds runs/s43/nvt_rule9_s*    # and mean, std, best and worst over them
     python scripts/nvt_summary.py --seeds --conditions runs/s44/nocrash20_unsel_s*   # and NoCrash per condition
+    python scripts/nvt_summary.py --seeds --episodes-of docs/navigation-report/bench/nocrash20_mp \
+        docs/navigation-report/bench/nocrash_full_s?   # full runs on the episodes another bench drove
 
-Reads each directory's results.jsonl (nav_validation_traffic or NoCrash): per task (empty, regular, dense) the
+Reads each directory's results (nav_validation_traffic or NoCrash; a `brl bench` output or its archive,
+`scripts/archive_bench.py`): per task (empty, regular, dense) the
 episodes reaching the goal, those ended by a crash in brackets, and the share of all frames partly in the opposite
 lane. With `--seeds`, the directories are one model per seed: a last line gives each level's mean and standard
 deviation (population, over the seeds) of the goals and crashes, and the best and worst seed by total goals (then
 fewest crashes). With `--conditions` (NoCrash, CoRL2017), the goals per task and condition pooled over the
-directories, and each task's success over all of them. Outside the paper.
+directories, and each task's success over all of them. `--episodes-of DIR` keeps, in every directory, only the
+episodes that DIR holds too (matched by episode identifier: the fixed NoCrash subset inside full runs). Bad input
+is one line, exit 2. Outside the paper.
 """
 
 from __future__ import annotations
 
-import json
+import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from brlcli.errors import BrlInputError
+from brlcli.report.load import load_results
 
-def _rows(bench_dir: Path) -> list[dict]:
-    return [json.loads(line) for line in (bench_dir / "results.jsonl").read_text().splitlines() if line.strip()]
+
+def episode_ids(bench_dir: Path) -> set[str]:
+    """The identifiers of the episodes a bench directory holds."""
+    return {r["id"] for r in load_results([bench_dir]).episodes}
 
 
-def counts(bench_dir: Path) -> dict[str, tuple[int, int, int]]:
+TASK_ORDER = ("empty", "regular", "dense")
+"""Traffic levels in the order the tables give them; other tasks (CoRL2017's) follow in the order met."""
+
+
+def _tasks(rows: list[dict]) -> list[str]:
+    met = list(dict.fromkeys(r["task"] for r in rows))
+    return [t for t in TASK_ORDER if t in met] + [t for t in met if t not in TASK_ORDER]
+
+
+def _rows(bench_dir: Path, keep: set[str] | None = None) -> list[dict]:
+    rows = load_results([bench_dir]).episodes
+    if keep is not None:
+        rows = [r for r in rows if r["id"] in keep]
+        if not rows:
+            raise BrlInputError(f"{bench_dir} holds none of the episodes of --episodes-of")
+    return rows
+
+
+def counts(bench_dir: Path, keep: set[str] | None = None) -> dict[str, tuple[int, int, int]]:
     """Per task: (goals, crashes, episodes)."""
-    rows = _rows(bench_dir)
+    rows = _rows(bench_dir, keep)
     out = {}
-    for task in dict.fromkeys(r["task"] for r in rows):
+    for task in _tasks(rows):
         sel = [r for r in rows if r["task"] == task]
         out[task] = (sum(r["success"] for r in sel), sum(bool(r.get("crashed", r["collided"])) for r in sel), len(sel))
     return out
 
 
-def seed_summary(bench_dirs: list[Path]) -> str:
+def seed_summary(bench_dirs: list[Path], keep: set[str] | None = None) -> str:
     """Mean +- std of goals (crashes) per task over one bench directory per seed, and the best and worst seed."""
-    per = [counts(d) for d in bench_dirs]
+    per = [counts(d, keep) for d in bench_dirs]
+    if any(c.keys() != per[0].keys() or any(c[t][2] != per[0][t][2] for t in c) for c in per):
+        raise BrlInputError("--seeds needs the same episodes in every directory (one of them is partial)")
     parts = []
     for task in per[0]:
         goals = np.array([c[task][0] for c in per], float)
@@ -49,27 +78,27 @@ def seed_summary(bench_dirs: list[Path]) -> str:
     return (f"{len(per)} seeds: " + " | ".join(parts) + f" | best {bench_dirs[best]}, worst {bench_dirs[worst]}")
 
 
-def summary(bench_dir: Path) -> str:
+def summary(bench_dir: Path, keep: set[str] | None = None) -> str:
     """'Empty g/n (c) | Regular ... | opposite lane x %' for one bench directory."""
-    rows = _rows(bench_dir)
+    rows = _rows(bench_dir, keep)
     parts = []
-    for task in dict.fromkeys(r["task"] for r in rows):
+    for task in _tasks(rows):
         sel = [r for r in rows if r["task"] == task]
         goals = sum(r["success"] for r in sel)
         crashes = sum(bool(r.get("crashed", r["collided"])) for r in sel)
         parts.append(f"{task} {goals}/{len(sel)} ({crashes})")
-    otherlane = sum(r["otherlane_steps"] for r in rows) / max(sum(r["steps"] for r in rows), 1)
+    otherlane = sum(r.get("otherlane_steps", 0) for r in rows) / max(sum(r["steps"] for r in rows), 1)
     return f"{bench_dir}: " + " | ".join(parts) + f" | opposite lane {100 * otherlane:.1f} % of frames"
 
 
 CONDITIONS = ("training", "new_weather", "new_town", "new_town_weather")
 
 
-def condition_summary(bench_dirs: list[Path]) -> str:
+def condition_summary(bench_dirs: list[Path], keep: set[str] | None = None) -> str:
     """Per task: goals / episodes per condition pooled over the directories, and the task's success share."""
-    rows = [r for d in bench_dirs for r in _rows(d)]
+    rows = [r for d in bench_dirs for r in _rows(d, keep)]
     lines = []
-    for task in dict.fromkeys(r["task"] for r in rows):
+    for task in _tasks(rows):
         sel = [r for r in rows if r["task"] == task]
         parts = []
         for cond in CONDITIONS:
@@ -81,13 +110,27 @@ def condition_summary(bench_dirs: list[Path]) -> str:
     return "\n".join(lines)
 
 
+def main(argv: list[str]) -> int:
+    """The command line: one line per directory, then the optional summaries; 2 on bad input."""
+    parser = argparse.ArgumentParser(prog="nvt_summary", description=__doc__.split("\n\n")[0])
+    parser.add_argument("dirs", nargs="+", type=Path, help="brl bench results directories (or their archives)")
+    parser.add_argument("--seeds", action="store_true", help="mean, std, best and worst over the directories")
+    parser.add_argument("--conditions", action="store_true", help="goals per task and condition, pooled")
+    parser.add_argument("--episodes-of", type=Path, metavar="DIR", help="only the episodes DIR holds too")
+    args = parser.parse_args(argv)
+    try:
+        keep = episode_ids(args.episodes_of) if args.episodes_of else None
+        for d in args.dirs:
+            print(summary(d, keep))
+        if args.seeds:
+            print(seed_summary(args.dirs, keep))
+        if args.conditions:
+            print(condition_summary(args.dirs, keep))
+    except BrlInputError as exc:
+        print(f"nvt_summary: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
 if __name__ == "__main__":
-    args = sys.argv[1:]
-    seeds, conditions = "--seeds" in args, "--conditions" in args
-    dirs = [Path(a) for a in args if a not in ("--seeds", "--conditions")]
-    for d in dirs:
-        print(summary(d))
-    if seeds and dirs:
-        print(seed_summary(dirs))
-    if conditions and dirs:
-        print(condition_summary(dirs))
+    sys.exit(main(sys.argv[1:]))

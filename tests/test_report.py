@@ -657,3 +657,39 @@ def test_results_of_an_older_suite_version_are_read_and_labelled(tmp_path: Path,
     results = load_results([old])
     assert len(results.episodes) == 4
     assert any("suite version 1, older than this brl's 2 (since then: a test change)" in n for n in results.notes)
+
+
+def test_nvt_summary_counts_full_runs_on_the_episodes_another_bench_drove(tmp_path: Path) -> None:
+    def ep(policy: str, n: int, task: str, success: bool) -> dict:
+        return {"suite": "nocrash", "condition": "training", "task": task, "town": "town01", "weather": 1,
+                "index": n, "id": f"nocrash/town01/training/{task}/w01/{n:02d}", "policy": policy,
+                "setting": policy, "seed": n, "success": success, "km": 0.4, "steps": 100, "collided": not success,
+                "crashed": not success, "offroad_steps": 0, "otherlane_steps": 0, "either_steps": 0,
+                "frames_file": f"frames/{policy}/{task}{n}.npz"}
+
+    full = [write_results(tmp_path / f"full{s}", [ep(f"set/seed_{s}", n, t, (n + s) % 3 != 0)
+                                                  for t in ("dense", "empty") for n in range(6)], suite="nocrash")
+            for s in (0, 1)]
+    subset = write_results(tmp_path / "sub", [ep("mp", n, t, True) for t in ("dense", "empty") for n in (0, 1)],
+                           suite="nocrash")
+    script = Path(__file__).resolve().parents[1] / "scripts" / "nvt_summary.py"
+
+    def run(*args: object) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True, text=True)
+
+    whole = run("--seeds", "--conditions", *full)
+    assert whole.returncode == 0, whole.stderr
+    assert f"{full[0]}: empty 4/6 (2) | dense 4/6 (2)" in whole.stdout  # n = 0, 3 fail for seed 0
+    assert "2 seeds: empty 4.0 +- 0.0 (2.0 +- 0.0) of 6 | dense" in whole.stdout
+    assert "dense: training 8/12 | all 8/12 = 66.7 %" in whole.stdout
+    (tmp_path / "arch").mkdir()
+    subprocess.run([sys.executable, str(script.parent / "archive_bench.py"), str(tmp_path / "arch"), str(full[1])],
+                   check=True, capture_output=True)
+    common = run("--seeds", "--episodes-of", subset, full[0], tmp_path / "arch" / "full1")  # an archive reads too
+    assert common.returncode == 0, common.stderr
+    assert f"{full[0]}: empty 1/2 (1) | dense 1/2 (1)" in common.stdout  # episodes 0 and 1 only
+    assert f"{tmp_path / 'arch' / 'full1'}: empty 2/2 (0)" in common.stdout
+    partial = run("--seeds", full[0], subset)
+    assert partial.returncode == 2 and partial.stderr.startswith("nvt_summary: error: --seeds needs the same")
+    missing = run(tmp_path / "nope")
+    assert missing.returncode == 2 and "Traceback" not in missing.stderr and missing.stderr.count("\n") == 1
