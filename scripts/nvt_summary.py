@@ -3,8 +3,8 @@
     python scripts/nvt_summary.py runs/s38/nvt_fine_ghost [more bench directories]
     python scripts/nvt_summary.py --seeds runs/s43/nvt_rule9_s*    # and mean, std, best and worst over them
     python scripts/nvt_summary.py --seeds --conditions runs/s44/nocrash20_unsel_s*   # and NoCrash per condition
-    python scripts/nvt_summary.py --seeds --episodes-of docs/navigation-report/bench/nocrash20_mp \
-        docs/navigation-report/bench/nocrash_full_s?   # full runs on the episodes another bench drove
+    B=docs/navigation-report/bench    # the archived report inputs
+    python scripts/nvt_summary.py --seeds --episodes-of $B/nocrash20_mp $B/nocrash_full_s?   # on another's episodes
 
 Reads each directory's results (nav_validation_traffic or NoCrash; a `brl bench` output or its archive,
 `scripts/archive_bench.py`): per task (empty, regular, dense) the
