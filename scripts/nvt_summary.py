@@ -20,6 +20,7 @@ is one line, exit 2. Outside the paper.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 
@@ -28,14 +29,18 @@ import numpy as np
 from brlcli.errors import BrlInputError
 from brlcli.report.load import load_results
 
+TASK_ORDER = ("empty", "regular", "dense")
+"""Traffic levels in the order the tables give them; other tasks (CoRL2017's) follow in the order met."""
+
+
+@functools.cache
+def _episodes(bench_dir: Path) -> tuple[dict, ...]:
+    return tuple(load_results([bench_dir]).episodes)  # read once per directory, however many summaries use it
+
 
 def episode_ids(bench_dir: Path) -> set[str]:
     """The identifiers of the episodes a bench directory holds."""
-    return {r["id"] for r in load_results([bench_dir]).episodes}
-
-
-TASK_ORDER = ("empty", "regular", "dense")
-"""Traffic levels in the order the tables give them; other tasks (CoRL2017's) follow in the order met."""
+    return {r["id"] for r in _episodes(bench_dir)}
 
 
 def _tasks(rows: list[dict]) -> list[str]:
@@ -44,7 +49,7 @@ def _tasks(rows: list[dict]) -> list[str]:
 
 
 def _rows(bench_dir: Path, keep: set[str] | None = None) -> list[dict]:
-    rows = load_results([bench_dir]).episodes
+    rows = list(_episodes(bench_dir))
     if keep is not None:
         rows = [r for r in rows if r["id"] in keep]
         if not rows:
