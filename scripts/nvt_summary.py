@@ -86,12 +86,7 @@ def seed_summary(bench_dirs: list[Path], keep: set[str] | None = None) -> str:
 def summary(bench_dir: Path, keep: set[str] | None = None) -> str:
     """'Empty g/n (c) | Regular ... | opposite lane x %' for one bench directory."""
     rows = _rows(bench_dir, keep)
-    parts = []
-    for task in _tasks(rows):
-        sel = [r for r in rows if r["task"] == task]
-        goals = sum(r["success"] for r in sel)
-        crashes = sum(bool(r.get("crashed", r["collided"])) for r in sel)
-        parts.append(f"{task} {goals}/{len(sel)} ({crashes})")
+    parts = [f"{task} {goals}/{n} ({crashes})" for task, (goals, crashes, n) in counts(bench_dir, keep).items()]
     otherlane = sum(r.get("otherlane_steps", 0) for r in rows) / max(sum(r["steps"] for r in rows), 1)
     return f"{bench_dir}: " + " | ".join(parts) + f" | opposite lane {100 * otherlane:.1f} % of frames"
 
